@@ -1,0 +1,63 @@
+# Set-up is two commands on a fresh Debian machine with Python 3.11:
+#   make demo   - install into .venv (once), then generate a small dataset
+#   make test   - install into .venv (once), then run the default test suite
+# A second run does no reinstall work: installation is keyed on a stamp file
+# that depends on pyproject.toml and this Makefile.
+
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+# CPU build by default (it is what these machines carry; an unpinned torch pulls
+# several GB of CUDA packages). GPU users: make TORCH_SPEC="torch==2.13.0" TORCH_INDEX=...
+TORCH_SPEC  ?= torch==2.13.0
+TORCH_INDEX ?=
+GL_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libosmesa6
+STAMP       := $(VENV)/.gelsim-installed
+DEMO_OUT    ?= out/demo
+
+.PHONY: install demo test test-slow bench gl-libs clean-venv
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml Makefile
+	@$(MAKE) --no-print-directory gl-libs
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q "$(TORCH_SPEC)" $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX),)
+	$(PY) -m pip install -q -e ".[test]"
+	# pyrender 0.1.45 pins PyOpenGL 3.1.0, which cannot make an EGL/OSMesa context on
+	# current Mesa; 3.1.10 works and is API compatible (see gelsim/compat.py).
+	$(PY) -m pip install -q --no-deps "PyOpenGL==3.1.10"
+	@touch $(STAMP)
+
+# Headless GL for the pyrender reference backend. Installed when we are root and
+# a library is missing; otherwise the exact command is printed and the fast
+# backend (and every test that does not need GL) still works.
+gl-libs:
+	@missing=""; for lib in libEGL.so.1 libOSMesa.so libgbm.so.1 libGL.so.1; do \
+	  ldconfig -p 2>/dev/null | grep -q "$$lib" || missing="$$missing $$lib"; done; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null; then \
+	    echo "installing headless GL ($$missing missing)"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(GL_PACKAGES) >/dev/null; \
+	  else \
+	    echo "headless GL missing ($$missing); install it with:"; \
+	    echo "  sudo apt-get install -y $(GL_PACKAGES)"; \
+	  fi; \
+	fi
+
+demo: $(STAMP)
+	$(VENV)/bin/gelsim generate --preset quick --out $(DEMO_OUT)
+	@echo "demo dataset: $(DEMO_OUT) (manifest: $(DEMO_OUT)/manifest.json, previews: $(DEMO_OUT)/previews/)"
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -m "slow or not slow"
+
+bench: $(STAMP)
+	@for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+clean-venv:
+	rm -rf $(VENV)

@@ -1,0 +1,76 @@
+"""The ``gelsim`` command line: a thin layer over the Python API.
+
+Each command group lives in its own module exposing ``register(subparsers)``;
+the handler it installs receives the parsed ``argparse.Namespace`` and returns
+an exit code. A :class:`~gelsim.errors.GelsimError` becomes one line on stderr
+and exit status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+
+from .. import __version__
+from ..errors import GelsimError
+
+# Command modules, in the order they appear in --help.
+COMMAND_MODULES = (
+    "fabrics_cmd",
+)
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
+    """Shows defaults and keeps the descriptions' line breaks."""
+
+
+def print_json(obj) -> None:
+    """Write one JSON document to stdout (the ``--json`` contract of every command)."""
+    json.dump(obj, sys.stdout, indent=2, default=_json_default)
+    sys.stdout.write("\n")
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if hasattr(o, "__fspath__"):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="gelsim",
+        description="GelSight tactile simulator and synthetic dataset generator.",
+        formatter_class=HelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"gelsim {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        importlib.import_module(f"{__name__}.{name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "handler", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.handler(args) or 0)
+    except GelsimError as e:
+        print(f"gelsim: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("gelsim: interrupted; rerun the same command to continue", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,41 @@
+"""Named fidelity levels: one choice that sets every speed/accuracy knob.
+
+Levels live in ``assets/fidelity.toml``; see that file for what each knob does.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from .errors import GelsimError
+from .params import ASSETS_DIR, build, load_toml, param
+
+FIDELITY_FILE = ASSETS_DIR / "fidelity.toml"
+DEFAULT_LEVEL = "balanced"
+
+
+@dataclass(frozen=True)
+class Fidelity:
+    name: str
+    physics_dt_s: float = param(lo=1e-6, hi=0.02, doc="MuJoCo timestep, s")
+    imprint_model: Literal["pyramid", "elastic"] = param(doc="gel imprint model")
+    imprint_scale: float = param(lo=0.05, hi=1.0, doc="imprint resolution relative to the image")
+    marker_model: Literal["gaussian", "elastic"] = param(doc="marker displacement model")
+    render_backend: Literal["fast", "pyrender"] = param(doc="renderer")
+    supersample: int = param(lo=1, hi=4, doc="render at this many times the resolution, then average down")
+
+
+def fidelity_levels() -> dict[str, Fidelity]:
+    """All levels in file order, fastest first."""
+    data = load_toml(FIDELITY_FILE)
+    return {name: build(Fidelity, {"name": name, **table}, where=f"fidelity.{name}")
+            for name, table in data.items()}
+
+
+def get_fidelity(name: str | Fidelity = DEFAULT_LEVEL) -> Fidelity:
+    if isinstance(name, Fidelity):
+        return name
+    levels = fidelity_levels()
+    if name not in levels:
+        raise GelsimError(f"unknown fidelity {name!r}; choose one of {', '.join(levels)}")
+    return levels[name]

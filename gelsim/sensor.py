@@ -1,0 +1,178 @@
+"""Sensor profiles: every physical parameter of one GelSight sensor.
+
+A profile is a TOML file under ``assets/sensors/`` (or any path), one commented
+file per sensor in the spirit of TACTO's ``config_digit.yml``. Units are in the
+keys. It loads into the frozen :class:`SensorProfile`; sections:
+
+* ``[image]``      camera resolution, mm per pixel, frame rate
+* ``[gel]``        elastomer geometry and stiffness
+* ``[markers]``    printed marker grid on the membrane
+* ``[[lights]]``   the coloured LEDs at the rim
+* ``[shading]``    membrane reflectance
+* ``[background]`` the flat-gel image (non-uniform illumination)
+* ``[noise]``      camera shot and read noise
+* ``[camera]``     optics blur and vignetting
+
+Coordinates used across gelsim: the sensor frame has its origin at the image
+centre, ``x`` to the right along image columns, ``y`` down along image rows,
+``z`` out of the gel towards the touched object, all in millimetres. Image
+arrays are ``(H, W)`` or ``(H, W, 3)`` with row index along ``y``.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from .errors import GelsimError
+from .params import ASSETS_DIR, build, load_toml, param
+
+SENSORS_DIR = ASSETS_DIR / "sensors"
+
+
+@dataclass(frozen=True)
+class ImageSpec:
+    width_px: int = param(lo=16, hi=8192, doc="image width in pixels")
+    height_px: int = param(lo=16, hi=8192, doc="image height in pixels")
+    mm_per_px: float = param(lo=1e-4, hi=1.0, lo_open=True, doc="size of one pixel on the gel, mm")
+    fps_hz: float = param(30.0, lo=1.0, hi=1000.0, doc="camera frame rate, Hz")
+
+
+@dataclass(frozen=True)
+class GelSpec:
+    thickness_mm: float = param(lo=0.1, hi=20.0, doc="elastomer thickness, mm")
+    young_modulus_mpa: float = param(lo=1e-3, hi=100.0, doc="Young's modulus of the elastomer, MPa")
+    poisson_ratio: float = param(lo=0.0, hi=0.5, doc="Poisson's ratio of the elastomer")
+    max_indentation_mm: float = param(lo=0.01, hi=20.0, doc="deepest indentation before the pad bottoms out, mm")
+    membrane_smoothing_mm: float = param(0.05, lo=0.0, hi=5.0,
+                                         doc="length over which the coated membrane smooths sharp relief, mm")
+
+
+@dataclass(frozen=True)
+class MarkerSpec:
+    enabled: bool = param(True, doc="draw markers at all")
+    size_mm: float = param(0.4, lo=0.01, hi=5.0, doc="side (square) or diameter (disk) of a marker, mm")
+    pitch_mm: float = param(1.6, lo=0.05, hi=20.0, doc="distance between neighbouring markers, mm")
+    layout: Literal["square", "hex"] = param("square", doc="grid layout")
+    shape: Literal["square", "disk"] = param("square", doc="marker shape")
+    darkness: float = param(0.85, lo=0.0, hi=1.0, doc="fraction of the light a marker absorbs")
+    jitter_mm: float = param(0.0, lo=0.0, hi=1.0, doc="random placement error of printed markers, mm")
+
+
+@dataclass(frozen=True)
+class LightSpec:
+    name: str = param(doc="label, e.g. red")
+    color_rgb: tuple[float, float, float] = param(doc="linear RGB colour of the LED, each 0-1")
+    azimuth_deg: float = param(lo=-360.0, hi=360.0,
+                               doc="direction the light comes FROM in the image plane: 0 = from +x (right), 90 = from +y (bottom)")
+    elevation_deg: float = param(lo=0.0, hi=90.0, doc="angle of the light above the gel plane, degrees")
+    intensity: float = param(1.0, lo=0.0, hi=100.0, doc="relative intensity")
+    falloff_per_mm: float = param(0.0, lo=0.0, hi=10.0,
+                                  doc="exponential decay of the LED's light across the gel, per mm from its rim")
+
+    def validate(self, where: str) -> None:
+        if any(not 0.0 <= c <= 1.0 for c in self.color_rgb):
+            raise GelsimError(f"{where}.color_rgb: each component must be in 0-1 (linear), got {self.color_rgb}")
+
+
+@dataclass(frozen=True)
+class ShadingSpec:
+    diffuse: float = param(1.0, lo=0.0, hi=10.0, doc="Lambertian gain of the membrane")
+    specular: float = param(0.0, lo=0.0, hi=10.0, doc="specular gain")
+    shininess: float = param(10.0, lo=1.0, hi=1000.0, doc="Phong exponent")
+    gain_dn: float = param(120.0, lo=0.0, hi=1000.0, doc="image DN added per unit of (shading - flat shading)")
+
+
+@dataclass(frozen=True)
+class BackgroundSpec:
+    rgb_dn: tuple[float, float, float] = param(doc="mean flat-gel colour, 0-255")
+    led_tint_dn: float = param(30.0, lo=0.0, hi=255.0,
+                               doc="extra brightness of each LED's colour near its own rim, 0-255")
+    nonuniformity_dn: float = param(4.0, lo=0.0, hi=100.0,
+                                    doc="amplitude of the smooth random illumination field, 0-255")
+    image: str = param("", doc="optional background image (PNG, relative to the profile) replacing the parametric field")
+
+
+@dataclass(frozen=True)
+class NoiseSpec:
+    read_sigma_dn: float = param(1.5, lo=0.0, hi=50.0, doc="Gaussian read noise, DN (0-255)")
+    shot_gain: float = param(0.03, lo=0.0, hi=5.0, doc="shot-noise variance per DN of signal")
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    blur_sigma_px: float = param(0.0, lo=0.0, hi=20.0, doc="Gaussian blur of the lens, px")
+    vignetting: float = param(0.0, lo=0.0, hi=1.0, doc="brightness lost at the image corners, fraction")
+
+
+@dataclass(frozen=True)
+class SensorProfile:
+    name: str
+    image: ImageSpec
+    gel: GelSpec
+    markers: MarkerSpec
+    lights: tuple[LightSpec, ...]
+    shading: ShadingSpec
+    background: BackgroundSpec
+    noise: NoiseSpec
+    camera: CameraSpec
+    description: str = ""
+    source: str = ""  # file the profile was loaded from (set by load_profile)
+
+    def validate(self, where: str) -> None:
+        if len(self.lights) == 0:
+            raise GelsimError(f"{where}: a profile needs at least one [[lights]] entry")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image shape ``(H, W)`` in pixels."""
+        return (self.image.height_px, self.image.width_px)
+
+    @property
+    def field_mm(self) -> tuple[float, float]:
+        """Field of view ``(width, height)`` on the gel in mm."""
+        return (self.image.width_px * self.image.mm_per_px, self.image.height_px * self.image.mm_per_px)
+
+    def with_resolution(self, width_px: int, height_px: int | None = None) -> "SensorProfile":
+        """The same sensor (same field of view in mm) imaged at another resolution.
+
+        ``height_px`` defaults to keeping the aspect ratio. Used for reduced-size
+        datasets and tests; every parameter in mm stays the same.
+        """
+        if height_px is None:
+            height_px = max(16, round(width_px * self.image.height_px / self.image.width_px))
+        if width_px < 16 or height_px < 16:
+            raise GelsimError(f"resolution {width_px}x{height_px} is too small; use at least 16x16 px")
+        scale = self.image.width_px / width_px
+        image = dataclasses.replace(self.image, width_px=int(width_px), height_px=int(height_px),
+                                    mm_per_px=self.image.mm_per_px * scale)
+        return dataclasses.replace(self, image=image)
+
+
+def list_profiles() -> list[str]:
+    """Names of the profiles shipped in ``assets/sensors/``."""
+    return sorted(p.stem for p in SENSORS_DIR.glob("*.toml"))
+
+
+def resolve_profile_path(name_or_path: str | Path) -> Path:
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        if not p.exists():
+            raise GelsimError(f"sensor profile file {p} not found; give an existing .toml or one of: "
+                              + ", ".join(list_profiles()))
+        return p
+    p = SENSORS_DIR / f"{name_or_path}.toml"
+    if not p.exists():
+        raise GelsimError(f"unknown sensor profile {str(name_or_path)!r}; choose one of "
+                          + ", ".join(list_profiles()) + " or give a path to a .toml file")
+    return p
+
+
+def load_profile(name_or_path: str | Path = "vitac") -> SensorProfile:
+    """Load a sensor profile by name (``vitac``, ``gelsight-r15``) or TOML path."""
+    path = resolve_profile_path(name_or_path)
+    data = load_toml(path)
+    data.setdefault("name", path.stem)
+    prof = build(SensorProfile, data, where=path.name)
+    return dataclasses.replace(prof, source=str(path))
