@@ -18,6 +18,7 @@ from ..errors import GelsimError
 # Command modules, in the order they appear in --help.
 COMMAND_MODULES = (
     "fabrics_cmd",
+    "generate_cmd",
 )
 
 

@@ -1,0 +1,182 @@
+"""``gelsim generate`` and ``gelsim verify``."""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+from ..errors import GelsimError
+
+
+def register(sub) -> None:
+    from . import HelpFormatter
+
+    p = sub.add_parser(
+        "generate", formatter_class=HelpFormatter,
+        help="write a synthetic ViTac-style dataset (videos, labels, manifest)",
+        description=(
+            "Simulate hand-held press, slip and twist sequences on procedural fabrics and write one video\n"
+            "per sequence, per-frame labels and DIR/manifest.json. Deterministic: each sequence has its own\n"
+            "seed, so the output is the same for any --workers. Interrupted (Ctrl-C, kill -9), rerun the same\n"
+            "command to finish without redoing finished sequences.\n\n"
+            "Presets: quick = 10 fabrics x 3 sequences at 320x240, fast (about a minute; `make demo`);\n"
+            "         cpu   = 100 fabrics x 12 sequences at 160x120, fast (sized for `stam experiment --preset cpu`).\n"
+            "Options given with a preset override it."),
+    )
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory (new, empty, or a dataset to resume)")
+    p.add_argument("--preset", choices=["quick", "cpu"], help="a named set of defaults (see above)")
+    p.add_argument("--fabrics", type=int, metavar="N", help="use fabrics 1..N of the catalog [default: 100]")
+    p.add_argument("--sequences-per-fabric", type=int, metavar="N",
+                   help="sequences per fabric; ViTac Cloth has about 50 (5,036 in all) [default: 50]")
+    p.add_argument("--actions", metavar="P:S:T", help="press:slip:twist weights, as in ViTac Cloth [default: 7:1:2]")
+    p.add_argument("--frames", metavar="MIN-MAX", help="frames per sequence, pre-contact included [default: 25-36]")
+    p.add_argument("--precontact", metavar="MIN-MAX",
+                   help="pre-contact frames per sequence (sensor approaching, nothing touching), uniform in the "
+                        "range [default: the range in assets/motions.toml]")
+    p.add_argument("--profile", metavar="NAME|PATH", help="sensor profile [default: vitac, 960x720]")
+    p.add_argument("--resolution", metavar="WxH", help="render at this size, same field of view in mm [default: the profile's]")
+    p.add_argument("--fidelity", choices=["fast", "balanced", "reference"], help="speed/accuracy level [default: balanced]")
+    p.add_argument("--seed", type=int, metavar="N", help="dataset seed [default: 0]")
+    p.add_argument("--workers", type=int, metavar="N", default=None, help="worker processes [default: all cores]")
+    p.add_argument("--format", choices=["h264", "ffv1", "png"], help="video format: H.264 .mp4, lossless FFV1 .mkv, or PNG frames [default: h264]")
+    p.add_argument("--dry-run", action="store_true", help="print the plan with estimated time and disk size; write nothing")
+    p.add_argument("--no-previews", action="store_true", help="skip the preview images")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout (no progress bar)")
+    p.set_defaults(handler=run_generate)
+
+    v = sub.add_parser("verify", formatter_class=HelpFormatter, help="check a dataset's files against its manifest",
+                       description="Check every file of a dataset against DIR/manifest.json: present, checksum, "
+                                   "decodable, expected frame count. Exit status 1 on any fault.")
+    v.add_argument("dir", metavar="DIR", help="dataset directory")
+    v.add_argument("--no-decode", action="store_true", help="skip decoding the videos (checksums only)")
+    v.add_argument("--json", action="store_true", help="print {ok, sequences, faults} as JSON")
+    v.set_defaults(handler=run_verify)
+
+
+def config_from_args(args: argparse.Namespace):
+    from ..dataset import PRESETS, GenerateConfig, parse_range, parse_ratio, parse_resolution
+
+    values: dict = {}
+    if args.preset:
+        values.update(PRESETS[args.preset])
+    if args.fabrics is not None:
+        values["fabrics"] = args.fabrics
+    if args.sequences_per_fabric is not None:
+        values["sequences_per_fabric"] = args.sequences_per_fabric
+    if args.actions is not None:
+        values["actions"] = parse_ratio(args.actions)
+    if args.frames is not None:
+        values["frames"] = parse_range(args.frames, "--frames", lo=2)
+    if args.precontact is not None:
+        values["precontact"] = parse_range(args.precontact, "--precontact", lo=0)
+    if args.profile is not None:
+        values["profile"] = args.profile
+    if args.resolution is not None:
+        values["resolution"] = parse_resolution(args.resolution)
+    if args.fidelity is not None:
+        values["fidelity"] = args.fidelity
+    if args.seed is not None:
+        values["seed"] = args.seed
+    if args.format is not None:
+        values["format"] = args.format
+    cfg = GenerateConfig(**values)
+    if cfg.precontact is not None and cfg.precontact[1] >= cfg.frames[0]:
+        raise GelsimError(f"--precontact {cfg.precontact[0]}-{cfg.precontact[1]} leaves no contact frames in the "
+                          f"shortest ({cfg.frames[0]}-frame) sequence; keep its maximum below the frame minimum")
+    return cfg
+
+
+def run_generate(args: argparse.Namespace) -> int:
+    from .. import dataset
+    from . import print_json
+
+    cfg = config_from_args(args)
+    if args.workers is not None and args.workers < 1:
+        raise GelsimError("--workers must be at least 1")
+    if args.dry_run:
+        return _dry_run(cfg, args)
+    bar = None
+    if not args.json:
+        from tqdm import tqdm
+
+        bar = tqdm(total=None, unit="seq", desc="generating", dynamic_ncols=True, file=sys.stderr)
+    frames_done = [0]
+    t0 = time.perf_counter()
+
+    def progress(done, total, rec):
+        frames_done[0] += rec["num_frames"]
+        if bar is not None:
+            if bar.total != total:
+                bar.total = total
+                bar.n = done - 1
+            bar.update(1)
+            bar.set_postfix(fps=f"{frames_done[0] / (time.perf_counter() - t0):.1f}")
+
+    try:
+        manifest = dataset.generate(cfg, args.out, workers=args.workers, progress=progress,
+                                    previews=not args.no_previews)
+    finally:
+        if bar is not None:
+            bar.close()
+    wall = time.perf_counter() - t0
+    timing = dataset.summarize_timings(args.out, manifest)
+    summary = {"out": str(args.out), "sequences": len(manifest["sequences"]), "complete": manifest["complete"],
+               "frames": sum(s["num_frames"] for s in manifest["sequences"]), "splits": manifest["splits"],
+               "wall_s": round(wall, 2), "new_frames_per_s": round(frames_done[0] / wall, 2) if wall > 0 else None,
+               "per_frame_ms": timing}
+    if args.json:
+        print_json(summary)
+    else:
+        print(f"wrote {summary['sequences']} sequences ({summary['frames']} frames) to {args.out} "
+              f"in {wall:.1f} s; manifest: {os.path.join(args.out, 'manifest.json')}")
+        if timing.get("frames"):
+            st = ", ".join(f"{k} {v:.1f}" for k, v in timing["stages_ms_per_frame"].items())
+            print(f"per frame (one worker): {timing['ms_per_frame']:.1f} ms end to end; {st} ms")
+    return 0
+
+
+def _dry_run(cfg, args) -> int:
+    from .. import dataset
+    from ..fabrics import load_catalog
+    from . import print_json
+
+    catalog = load_catalog()
+    profile = dataset.resolve_profile(cfg)
+    specs = dataset.plan(cfg, len(catalog))
+    frames = sum(s.num_frames for s in specs)
+    w, h = profile.image.width_px, profile.image.height_px
+    nbytes = dataset.estimate_bytes(specs, cfg.format, w, h)
+    from ..fidelity import get_fidelity
+
+    fid = get_fidelity(cfg.fidelity)
+    workers = args.workers or os.cpu_count() or 1
+    est_s = frames * fid.est_ms_per_frame_vga * (w * h) / (640 * 480) / 1000 / workers
+    counts = {a: sum(1 for s in specs if s.action == a) for a in dataset.ACTIONS}
+    splits = {k: sum(1 for s in specs if s.split == k) for k in dataset.SPLITS}
+    plan = {"out": str(args.out), "options": cfg.options(), "sequences": len(specs), "frames": frames,
+            "actions": counts, "splits": splits, "resolution": [w, h], "workers": workers,
+            "estimated_seconds": round(est_s, 1), "estimated_bytes": nbytes}
+    if args.json:
+        print_json(plan)
+    else:
+        print(f"plan: {len(specs)} sequences, {frames} frames at {w}x{h}, fidelity {cfg.fidelity}, format {cfg.format}")
+        print(f"  actions {counts}; splits {splits}")
+        print(f"  estimated time {est_s / 60:.1f} min on {workers} workers; disk about {nbytes / 1e9:.2f} GB")
+        print("  (dry run: nothing written)")
+    return 0
+
+
+def run_verify(args: argparse.Namespace) -> int:
+    from ..dataset import load_manifest, verify
+    from . import print_json
+
+    m = load_manifest(args.dir)
+    faults = verify(args.dir, decode=not args.no_decode)
+    if args.json:
+        print_json({"ok": not faults, "sequences": len(m.get("sequences", [])), "faults": faults})
+    else:
+        for f in faults:
+            print(f)
+        print(f"{len(m.get('sequences', []))} sequences checked: " + ("OK" if not faults else f"{len(faults)} fault(s)"))
+    return 1 if faults else 0

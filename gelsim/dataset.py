@@ -1,0 +1,518 @@
+"""The dataset: plan, generate (parallel, resumable, deterministic), manifest and verify.
+
+Layout of a dataset directory ``DIR`` (``stam`` reads it; documented in the README)::
+
+    DIR/manifest.json               the index (format "gelsim-dataset"), replaced atomically
+    DIR/videos/fNNN/<id>.mp4        one video per sequence (.mkv for FFV1, a directory for PNG)
+    DIR/labels/fNNN/<id>.npz        per-frame labels of that sequence
+    DIR/records/<id>.json           written last for each finished sequence (checksums, timings)
+    DIR/previews/*.png              a frame strip per action and a contact sheet of all fabrics
+
+Every sequence has its own seed derived from (dataset seed, fabric id, sequence index),
+so the output is identical whatever the number of workers and however often the run is
+interrupted and resumed. A sequence counts as finished only once its record exists, and
+the record is written only after its video and labels were renamed into place.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from . import __version__
+from .errors import GelsimError
+
+FORMAT = "gelsim-dataset"
+FORMAT_VERSION = 1
+ACTIONS = ("press", "slip", "twist")
+SPLITS = ("train", "val", "test")
+SPLIT_WEIGHTS = (7, 2, 1)  # the paper's 7:2:1 split, by sequence
+# Bytes per pixel per frame of each format at 960x720, measured on generated sequences
+# (benchmarks/bench_generate.py); used only for the disk check and --dry-run.
+BYTES_PER_PIXEL = {"h264": 0.02, "ffv1": 0.9, "png": 1.6}
+LABELS_BYTES_PER_FRAME = 2_000
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """Everything that determines a dataset's content (workers do not)."""
+    fabrics: int = 100
+    sequences_per_fabric: int = 50
+    actions: tuple[float, float, float] = (7.0, 1.0, 2.0)
+    frames: tuple[int, int] = (25, 36)
+    precontact: tuple[int, int] | None = None   # None: the default range of assets/motions.toml
+    profile: str = "vitac"
+    resolution: tuple[int, int] | None = None   # (width, height); None: the profile's own
+    fidelity: str = "balanced"
+    seed: int = 0
+    format: str = "h264"
+
+    def options(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    # A first look in about a minute on 2 cores: 10 fabrics x 3 sequences at 320x240.
+    "quick": dict(fabrics=10, sequences_per_fabric=3, resolution=(320, 240), fidelity="fast"),
+    # What `stam experiment --preset cpu` is sized for: all fabrics, 12 sequences each, 160x120.
+    "cpu": dict(fabrics=100, sequences_per_fabric=12, resolution=(160, 120), fidelity="fast"),
+}
+
+
+@dataclass(frozen=True)
+class SequenceSpec:
+    id: str
+    fabric_id: int
+    index: int
+    action: str
+    seed: int
+    num_frames: int
+    precontact_frames: int | None
+    split: str
+
+    def video_stem(self) -> str:
+        return f"videos/f{self.fabric_id:03d}/{self.id}"
+
+    def labels_rel(self) -> str:
+        return f"labels/f{self.fabric_id:03d}/{self.id}.npz"
+
+
+# ---------------------------------------------------------------- planning
+
+def parse_ratio(text: str) -> tuple[float, float, float]:
+    """``"7:1:2"`` -> (7.0, 1.0, 2.0) press:slip:twist weights."""
+    parts = text.split(":")
+    try:
+        vals = tuple(float(p) for p in parts)
+    except ValueError:
+        vals = ()
+    if len(vals) != 3 or any(not math.isfinite(v) or v < 0 for v in vals) or sum(vals) <= 0:
+        raise GelsimError(f"--actions {text!r} is malformed; give three non-negative press:slip:twist weights, e.g. 7:1:2")
+    return vals  # type: ignore[return-value]
+
+
+def parse_range(text: str, option: str, lo: int = 0) -> tuple[int, int]:
+    """``"25-36"`` -> (25, 36); a single number N means N-N."""
+    parts = text.split("-")
+    try:
+        vals = [int(p) for p in parts]
+    except ValueError:
+        vals = []
+    if len(vals) == 1:
+        vals = vals * 2
+    if len(vals) != 2:
+        raise GelsimError(f"{option} {text!r} is malformed; give MIN-MAX, e.g. 25-36")
+    a, b = vals
+    if a > b:
+        raise GelsimError(f"{option} {text!r} is inverted; give MIN-MAX with MIN <= MAX")
+    if a < lo:
+        raise GelsimError(f"{option} {text!r} is out of range; values must be >= {lo}")
+    return a, b
+
+
+def parse_resolution(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise GelsimError(f"--resolution {text!r} is malformed; give WIDTHxHEIGHT, e.g. 320x240") from None
+    if w < 16 or h < 16:
+        raise GelsimError(f"--resolution {text!r} is too small; use at least 16x16")
+    return w, h
+
+
+def apportion(total: int, weights: Iterable[float]) -> list[int]:
+    """Split ``total`` into integer parts proportional to ``weights`` (largest remainder)."""
+    w = np.asarray(list(weights), dtype=np.float64)
+    exact = total * w / w.sum()
+    counts = np.floor(exact).astype(int)
+    order = np.argsort(-(exact - counts), kind="stable")
+    for k in order[: total - counts.sum()]:
+        counts[k] += 1
+    return counts.tolist()
+
+
+def sequence_seed(seed: int, fabric_id: int, index: int) -> int:
+    return int(np.random.SeedSequence([seed, fabric_id, index]).generate_state(1)[0])
+
+
+def plan(config: GenerateConfig, catalog_size: int) -> list[SequenceSpec]:
+    """Every sequence of the dataset, with its action, frame count, seed and split."""
+    if not 1 <= config.fabrics <= catalog_size:
+        raise GelsimError(f"--fabrics {config.fabrics} is out of range; the catalog has fabrics 1-{catalog_size}")
+    if config.sequences_per_fabric < 1:
+        raise GelsimError("--sequences-per-fabric must be at least 1")
+    specs = []
+    for fid in range(1, config.fabrics + 1):
+        n = config.sequences_per_fabric
+        counts = apportion(n, config.actions)
+        actions = [a for a, c in zip(ACTIONS, counts) for _ in range(c)]
+        # Interleave actions deterministically so that any prefix of a fabric's sequences
+        # (and so any split) mixes them.
+        order_rng = np.random.default_rng([config.seed, fid, 1])
+        actions = [actions[k] for k in order_rng.permutation(n)]
+        split_of = np.empty(n, dtype=object)
+        split_counts = apportion(n, SPLIT_WEIGHTS)
+        perm = np.random.default_rng([config.seed, fid, 2]).permutation(n)
+        start = 0
+        for name, c in zip(SPLITS, split_counts):
+            split_of[perm[start:start + c]] = name
+            start += c
+        for i in range(n):
+            s = sequence_seed(config.seed, fid, i)
+            rng = np.random.default_rng(s)
+            frames = int(rng.integers(config.frames[0], config.frames[1] + 1))
+            pre = None
+            if config.precontact is not None:
+                pre = int(rng.integers(config.precontact[0], config.precontact[1] + 1))
+                if pre >= frames:
+                    raise GelsimError(f"--precontact {config.precontact[0]}-{config.precontact[1]} leaves no contact "
+                                      f"frames in a {frames}-frame sequence; lower it below the frame count")
+            specs.append(SequenceSpec(id=f"f{fid:03d}-s{i:04d}", fabric_id=fid, index=i, action=actions[i],
+                                      seed=s, num_frames=frames, precontact_frames=pre, split=str(split_of[i])))
+    return specs
+
+
+# ---------------------------------------------------------------- files
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def atomic_write_json(path: Path, obj: Any) -> None:
+    atomic_write_bytes(path, (json.dumps(obj, indent=1, sort_keys=False) + "\n").encode())
+
+
+def sha256_of(path: Path) -> str:
+    """Checksum of a file, or of a PNG directory's frames in order."""
+    h = hashlib.sha256()
+    files = sorted(path.glob("*.png")) if path.is_dir() else [path]
+    for p in files:
+        with open(p, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+    return h.hexdigest()
+
+
+def load_manifest(root: str | Path) -> dict:
+    root = Path(root)
+    mpath = root / "manifest.json"
+    if not mpath.exists():
+        raise GelsimError(f"{root} is not a gelsim dataset (no manifest.json); give a directory made by gelsim generate")
+    try:
+        m = json.loads(mpath.read_text())
+    except json.JSONDecodeError as e:
+        raise GelsimError(f"{mpath} is not valid JSON ({e}); regenerate the dataset") from None
+    if not isinstance(m, dict) or m.get("format") != FORMAT:
+        raise GelsimError(f"{root} is not a gelsim dataset (manifest format is not {FORMAT!r})")
+    return m
+
+
+def _check_out_dir(root: Path, options: dict) -> dict | None:
+    """Existing manifest if ``root`` holds the same dataset; error if it holds anything else."""
+    if root.exists() and not root.is_dir():
+        raise GelsimError(f"--out {root} is a file; give a directory")
+    if root.exists() and any(root.iterdir()):
+        if not (root / "manifest.json").exists():
+            raise GelsimError(f"--out {root} holds files that are not a gelsim dataset; give an empty or new directory")
+        m = load_manifest(root)
+        if m.get("options") != options:
+            diff = [k for k in options if m.get("options", {}).get(k) != options[k]]
+            raise GelsimError(f"--out {root} holds a dataset made with other options ({', '.join(diff)}); "
+                              "rerun with the same options to resume, or choose another --out")
+        return m
+    # Writability is checked by creating the directory (nothing else is touched).
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        probe = root / f".write-probe-{os.getpid()}"
+        probe.touch()
+        probe.unlink()
+    except OSError as e:
+        raise GelsimError(f"--out {root} is not writable ({e.strerror}); choose a writable directory") from None
+    return None
+
+
+def estimate_bytes(specs: list[SequenceSpec], fmt: str, width: int, height: int) -> int:
+    frames = sum(s.num_frames for s in specs)
+    return int(frames * (BYTES_PER_PIXEL[fmt] * width * height + LABELS_BYTES_PER_FRAME))
+
+
+# ---------------------------------------------------------------- workers
+
+_WORKER: dict[str, Any] = {}
+
+
+def _worker_init(config: GenerateConfig, root: str) -> None:
+    import cv2
+
+    # One process per core: nested threading in OpenCV or torch would oversubscribe.
+    cv2.setNumThreads(1)
+    from .fabrics import load_catalog
+    from .fidelity import get_fidelity
+    from .motion import load_motion_ranges
+    from .optics import Renderer
+    from .sensor import load_profile
+
+    profile = load_profile(config.profile)
+    if config.resolution is not None:
+        profile = profile.with_resolution(*config.resolution)
+    fidelity = get_fidelity(config.fidelity)
+    _WORKER.update(config=config, root=Path(root), catalog=load_catalog(), profile=profile, fidelity=fidelity,
+                   ranges=load_motion_ranges(),
+                   renderer=Renderer(profile, fidelity.render_backend, supersample=fidelity.supersample,
+                                     seed=config.seed))
+
+
+def generate_sequence(spec: SequenceSpec) -> dict:
+    """Simulate, render, encode and record one sequence (in a worker). Returns its record."""
+    from .motion import sample_motion
+    from .sequence import SequenceOutput, render_sequence
+    from .video import VideoWriter, video_path
+
+    w = _WORKER
+    config: GenerateConfig = w["config"]
+    root: Path = w["root"]
+    profile, fidelity = w["profile"], w["fidelity"]
+    fabric = w["catalog"][spec.fabric_id]
+    t0 = time.perf_counter()
+    motion = sample_motion(spec.action, spec.seed,
+                           frames=(spec.num_frames, spec.num_frames),
+                           precontact=None if spec.precontact_frames is None
+                           else (spec.precontact_frames, spec.precontact_frames),
+                           ranges=w["ranges"])
+    out = SequenceOutput({}, {})
+    vpath = root / video_path(spec.video_stem(), config.format)
+    encode_s = 0.0
+    with VideoWriter(vpath, fmt=config.format, fps=profile.image.fps_hz) as writer:
+        for frame in render_sequence(fabric, motion, profile, fidelity, seed=spec.seed,
+                                     renderer=w["renderer"], sensor_seed=config.seed, out=out):
+            te = time.perf_counter()
+            writer.write(frame)
+            encode_s += time.perf_counter() - te
+    te = time.perf_counter()
+    lpath = root / spec.labels_rel()
+    import io
+
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **out.labels)
+    atomic_write_bytes(lpath, buf.getvalue())
+    encode_s += time.perf_counter() - te
+    in_contact = np.asarray(out.labels["in_contact"], bool)
+    onset = int(np.argmax(in_contact)) if in_contact.any() else -1
+    timings = dict(out.timings_s, encode=encode_s)
+    record = dict(id=spec.id, fabric_id=spec.fabric_id, action=spec.action, num_frames=motion.num_frames,
+                  contact_onset=onset, precontact_frames=motion.precontact_frames, split=spec.split,
+                  video=str(vpath.relative_to(root)), labels=spec.labels_rel(), seed=spec.seed,
+                  sha256={"video": sha256_of(vpath), "labels": sha256_of(lpath)},
+                  peak_force_n=float(np.max(out.labels["normal_force_n"])),
+                  timings_s={k: round(v, 4) for k, v in timings.items()},
+                  seconds=round(time.perf_counter() - t0, 3))
+    atomic_write_json(root / "records" / f"{spec.id}.json", record)
+    return record
+
+
+# ---------------------------------------------------------------- generate
+
+# Keys of a record that describe the data (timings vary run to run and stay out of the manifest).
+_MANIFEST_KEYS = ("id", "fabric_id", "action", "num_frames", "contact_onset", "precontact_frames", "split",
+                  "video", "labels", "seed", "sha256", "peak_force_n")
+
+
+def _manifest(config: GenerateConfig, profile, catalog, specs, records: dict[str, dict]) -> dict:
+    seqs = []
+    for s in specs:
+        r = records.get(s.id)
+        seqs.append({k: r[k] for k in _MANIFEST_KEYS} if r else
+                    dict(id=s.id, fabric_id=s.fabric_id, action=s.action, num_frames=s.num_frames, split=s.split))
+    fabric_ids = sorted({s.fabric_id for s in specs})
+    return {
+        "format": FORMAT, "format_version": FORMAT_VERSION,
+        "complete": len(records) == len(specs),
+        "generator_version": __version__, "seed": config.seed, "options": config.options(),
+        "catalog_version": catalog.version,
+        "profile": {"name": profile.name, "width_px": profile.image.width_px, "height_px": profile.image.height_px,
+                    "mm_per_px": profile.image.mm_per_px, "fps_hz": profile.image.fps_hz},
+        "fabrics": [{"id": f.id, "name": f.name, "family": f.family, "material": f.material}
+                    for f in (catalog[i] for i in fabric_ids)],
+        "splits": {k: sum(1 for s in specs if s.split == k) for k in SPLITS},
+        "sequences": seqs,
+    }
+
+
+def _clean_partials(root: Path) -> None:
+    """Remove temporary files an interrupted run left behind (they are never valid output)."""
+    for p in root.rglob(".*.partial-*"):
+        if p.is_dir():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
+
+
+def _load_records(root: Path, specs: list[SequenceSpec]) -> dict[str, dict]:
+    """Records of finished sequences whose files are still in place."""
+    done = {}
+    for s in specs:
+        rp = root / "records" / f"{s.id}.json"
+        if not rp.exists():
+            continue
+        try:
+            r = json.loads(rp.read_text())
+        except json.JSONDecodeError:
+            continue
+        if (root / r["video"]).exists() and (root / r["labels"]).exists():
+            done[s.id] = r
+    return done
+
+
+def resolve_profile(config: GenerateConfig):
+    from .sensor import load_profile
+
+    profile = load_profile(config.profile)
+    if config.resolution is not None:
+        profile = profile.with_resolution(*config.resolution)
+    return profile
+
+
+def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = None,
+             progress: Callable[[int, int, dict], None] | None = None, previews: bool = True) -> dict:
+    """Generate (or finish) the dataset ``config`` under ``out``; returns the final manifest.
+
+    ``progress(done, total, record)`` is called after each sequence (for a progress bar).
+    """
+    from .fabrics import load_catalog
+    from .fidelity import get_fidelity
+    from .video import EXTENSIONS
+
+    if config.format not in EXTENSIONS:
+        raise GelsimError(f"--format {config.format!r} is unknown; choose one of {', '.join(EXTENSIONS)}")
+    catalog = load_catalog()
+    profile = resolve_profile(config)
+    get_fidelity(config.fidelity)
+    specs = plan(config, len(catalog))
+    root = Path(out)
+    _check_out_dir(root, config.options())
+    _clean_partials(root)
+    records = _load_records(root, specs)
+    todo = [s for s in specs if s.id not in records]
+    need = estimate_bytes(todo, config.format, profile.image.width_px, profile.image.height_px)
+    free = shutil.disk_usage(root).free
+    if need > free:
+        raise GelsimError(f"too little disk under {root}: about {need / 1e9:.1f} GB needed, {free / 1e9:.1f} GB free; "
+                          "free space or choose another --out")
+    atomic_write_json(root / "manifest.json", _manifest(config, profile, catalog, specs, records))
+    workers = max(1, workers or os.cpu_count() or 1)
+    total = len(specs)
+    done = len(records)
+    if todo:
+        if workers == 1:
+            _worker_init(config, str(root))
+            results = map(generate_sequence, todo)
+            pool = None
+        else:
+            import multiprocessing as mp
+
+            ctx = mp.get_context("fork")
+            pool = ctx.Pool(workers, initializer=_worker_init, initargs=(config, str(root)))
+            results = pool.imap_unordered(generate_sequence, todo, chunksize=1)
+        try:
+            for rec in results:
+                records[rec["id"]] = rec
+                done += 1
+                if progress:
+                    progress(done, total, rec)
+        finally:
+            if pool is not None:
+                pool.terminate()
+                pool.join()
+    manifest = _manifest(config, profile, catalog, specs, records)
+    if previews:
+        from .previews import write_previews
+
+        write_previews(root, manifest)
+    atomic_write_json(root / "manifest.json", manifest)
+    return manifest
+
+
+def summarize_timings(root: str | Path, manifest: dict) -> dict:
+    """Per-stage and end-to-end time per frame (ms) from the sequences' records."""
+    root = Path(root)
+    stages: dict[str, float] = {}
+    frames = 0
+    wall = 0.0
+    for s in manifest["sequences"]:
+        rp = root / "records" / f"{s['id']}.json"
+        if not rp.exists():
+            continue
+        r = json.loads(rp.read_text())
+        frames += r["num_frames"]
+        wall += r["seconds"]
+        for k, v in r["timings_s"].items():
+            stages[k] = stages.get(k, 0.0) + v
+    if frames == 0:
+        return {"frames": 0}
+    return {"frames": frames, "ms_per_frame": 1000 * wall / frames,
+            "stages_ms_per_frame": {k: 1000 * v / frames for k, v in sorted(stages.items())}}
+
+
+# ---------------------------------------------------------------- verify
+
+def verify(root: str | Path, *, decode: bool = True, progress: Callable[[int, int], None] | None = None) -> list[str]:
+    """Check every file against the manifest; returns a list of faults (empty when sound).
+
+    Checks: manifest complete; each sequence's video and labels present, their checksums
+    as recorded, the video decodes to ``num_frames`` frames and the labels have one row
+    per frame.
+    """
+    from .video import count_frames
+
+    root = Path(root)
+    m = load_manifest(root)
+    faults = []
+    if not m.get("complete"):
+        faults.append("manifest: the dataset is incomplete (complete=false); rerun gelsim generate with the same options")
+    seqs = m.get("sequences", [])
+    for k, s in enumerate(seqs):
+        sid = s.get("id", f"#{k}")
+        if "video" not in s or "labels" not in s or "sha256" not in s:
+            faults.append(f"{sid}: not generated yet")
+            continue
+        v, lab = root / s["video"], root / s["labels"]
+        for kind, p in (("video", v), ("labels", lab)):
+            if not p.exists():
+                faults.append(f"{sid}: {kind} {s[kind]} is missing")
+            elif sha256_of(p) != s["sha256"][kind]:
+                faults.append(f"{sid}: {kind} {s[kind]} does not match its checksum (changed or truncated)")
+        if decode and v.exists():
+            try:
+                n = count_frames(v)
+            except GelsimError as e:
+                faults.append(f"{sid}: {e}")
+            else:
+                if n != s["num_frames"]:
+                    faults.append(f"{sid}: video has {n} frames, manifest says {s['num_frames']}")
+        if lab.exists():
+            try:
+                with np.load(lab) as z:
+                    n = len(z["normal_force_n"])
+                if n != s["num_frames"]:
+                    faults.append(f"{sid}: labels have {n} frames, manifest says {s['num_frames']}")
+            except Exception as e:  # any unreadable npz is a fault to report, not to crash on
+                faults.append(f"{sid}: labels unreadable ({type(e).__name__})")
+        if progress:
+            progress(k + 1, len(seqs))
+    return faults

@@ -1,0 +1,163 @@
+"""One tactile sequence end to end: fabric -> contact -> gel -> optics.
+
+:func:`render_sequence` strings the stages together for one (fabric, motion)
+pair and yields frames one at a time (constant memory), then returns the
+per-frame labels. Work is skipped where a frame does not need it: frames out of
+contact reuse the flat-gel imprint (no imprint or marker solve), and slip/twist
+terms are only evaluated when the contact simulation reports shear or torsion.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Iterator
+
+import cv2
+import numpy as np
+
+from .contact import ContactFrames, Surface, simulate
+from .fabrics import Fabric, heightfield
+from .fidelity import Fidelity
+from .gel import press
+from .markers import displace, marker_grid, rest_markers
+from .motion import Motion
+from .optics import Renderer
+from .sensor import SensorProfile
+
+# Physics sees the fabric at this coarse cell size; finer texture is the gel model's
+# business (REFERENCES: hfield contacts are capped at 50 per pair, so finer cells buy nothing).
+PHYSICS_MM_PER_PX = 0.2
+
+
+@dataclass
+class StageTimer:
+    """Accumulates wall time per pipeline stage, in seconds."""
+    seconds: dict[str, float] = field(default_factory=lambda: defaultdict(float))
+
+    def add(self, stage: str, t0: float) -> float:
+        t1 = time.perf_counter()
+        self.seconds[stage] += t1 - t0
+        return t1
+
+
+@dataclass
+class FabricPatch:
+    """A fabric heightfield patch in the world (fabric) frame covering a sequence's travel."""
+    heights_mm: np.ndarray   # float32 (h, w)
+    origin_mm: tuple[float, float]
+    mm_per_px: float
+
+    @classmethod
+    def for_motion(cls, fabric: Fabric, motion: Motion, profile: SensorProfile, mm_per_px: float,
+                   seed: int) -> "FabricPatch":
+        xmin, ymin, xmax, ymax = motion.travel_bounds_mm()
+        fw, fh = profile.field_mm
+        # The sensor rotates (twist) and tilts: cover its field's circumscribed circle.
+        r = 0.5 * math.hypot(fw, fh) + 2 * mm_per_px
+        x0, y0 = xmin - r, ymin - r
+        w = int(math.ceil((xmax - xmin + 2 * r) / mm_per_px)) + 1
+        h = int(math.ceil((ymax - ymin + 2 * r) / mm_per_px)) + 1
+        hf = heightfield(fabric, x0_mm=x0, y0_mm=y0, width_px=w, height_px=h, mm_per_px=mm_per_px,
+                         seed=seed, rotation_deg=motion.fabric_rotation_deg)
+        return cls(hf.astype(np.float32, copy=False), (x0, y0), mm_per_px)
+
+    def sample(self, shape: tuple[int, int], sensor_mm_per_px: float, x_mm: float, y_mm: float,
+               yaw_deg: float, tilt_deg: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+        """Protrusion map ``float32 shape`` (H, W) seen by a sensor at (x, y, yaw), mm >= 0.
+
+        Sensor pixel (u, v) sits at sensor-frame point ((u - (W-1)/2) s, (v - (H-1)/2) s);
+        rotating by yaw and translating by (x, y) gives the world point, which maps to
+        patch pixel ((xw - x0)/p, (yw - y0)/p). warpAffine with WARP_INVERSE_MAP takes
+        exactly that dst->src affine map.
+        """
+        H, W = shape
+        s, p = sensor_mm_per_px, self.mm_per_px
+        c, sn = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+        cu, cv = (W - 1) / 2.0, (H - 1) / 2.0
+        x0, y0 = self.origin_mm
+        a11, a12 = c * s / p, -sn * s / p
+        a21, a22 = sn * s / p, c * s / p
+        b1 = (x_mm - x0) / p - a11 * cu - a12 * cv
+        b2 = (y_mm - y0) / p - a21 * cu - a22 * cv
+        M = np.array([[a11, a12, b1], [a21, a22, b2]], dtype=np.float64)
+        out = cv2.warpAffine(self.heights_mm, M, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                             borderMode=cv2.BORDER_REPLICATE)
+        if tilt_deg[0] or tilt_deg[1]:
+            # A tilted sensor meets one side of the fabric first: the fabric appears raised
+            # on the side the gel leans towards (small angles: a plane of slope tan(tilt)).
+            xs = (np.arange(W, dtype=np.float32) - cu) * s
+            ys = (np.arange(H, dtype=np.float32) - cv) * s
+            out += np.float32(math.tan(math.radians(tilt_deg[1]))) * xs[None, :]
+            out += np.float32(math.tan(math.radians(tilt_deg[0]))) * ys[:, None]
+        return out
+
+
+@dataclass
+class SequenceOutput:
+    labels: dict[str, np.ndarray]
+    timings_s: dict[str, float]
+
+
+def render_sequence(fabric: Fabric, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *,
+                    seed: int, renderer: Renderer | None = None, sensor_seed: int = 0,
+                    out: SequenceOutput | None = None) -> Iterator[np.ndarray]:
+    """Yield the ``uint8 (H, W, 3)`` frames of one sequence; fills ``out`` with labels and timings.
+
+    ``seed`` drives everything random in this sequence (fabric irregularity phase, camera
+    noise); ``sensor_seed`` fixes what belongs to the physical sensor and stays the same
+    across a dataset (background illumination field, printed marker jitter).
+    """
+    timer = StageTimer()
+    t = time.perf_counter()
+    renderer = renderer or Renderer(profile, fidelity.render_backend, supersample=fidelity.supersample,
+                                    seed=sensor_seed)
+    surface = Surface.from_fabric(fabric, motion, profile, mm_per_px=PHYSICS_MM_PER_PX, seed=seed)
+    t = timer.add("fabric", t)
+    contact: ContactFrames = simulate(motion, surface, profile, fidelity)
+    t = timer.add("physics", t)
+    patch = FabricPatch.for_motion(fabric, motion, profile, profile.image.mm_per_px, seed)
+    support = fabric.compressive_modulus_kpa / fabric.thickness_mm
+    t = timer.add("fabric", t)
+
+    rest = marker_grid(profile, seed=sensor_seed) if profile.markers.enabled else None
+    flat_markers = rest_markers(profile, seed=sensor_seed) if profile.markers.enabled else None
+    rng = np.random.default_rng(seed)
+    T = motion.num_frames
+    n_markers = 0 if rest is None else len(rest)
+    markers_xy = np.zeros((T, n_markers, 2), np.float32)
+    indentation = np.zeros(T, np.float32)
+    area = np.zeros(T, np.float32)
+    for i in range(T):
+        force = float(contact.normal_force_n[i])
+        imprint = None
+        if contact.in_contact[i] and force > 0.0:
+            prot = patch.sample(profile.shape, profile.image.mm_per_px, contact.position_mm[i, 0],
+                                contact.position_mm[i, 1], contact.yaw_deg[i], tuple(contact.tilt_deg[i]))
+            t = timer.add("fabric", t)
+            imprint = press(prot, profile, fidelity, force_n=force, support_stiffness_kpa_per_mm=support)
+            indentation[i] = imprint.indentation_mm
+            area[i] = imprint.contact_area_mm2
+            t = timer.add("imprint", t)
+        if rest is not None:
+            if imprint is None:
+                mk = flat_markers
+            else:
+                mk = displace(profile, fidelity, imprint, shear_mm=tuple(contact.shear_mm[i]),
+                              twist_deg=float(contact.twist_deg[i]), rest=rest)
+            markers_xy[i] = mk.xy_px
+            t = timer.add("markers", t)
+        else:
+            mk = None
+        frame = renderer.render(None if imprint is None else imprint.depth_mm, mk, seed=rng)
+        t = timer.add("optics", t)
+        yield frame
+        t = time.perf_counter()  # time spent by the consumer (encoding) is not ours
+
+    labels = contact.to_dict()
+    labels.update(indentation_mm=indentation, contact_area_mm2=area, markers_xy_px=markers_xy,
+                  markers_rest_px=(np.zeros((0, 2), np.float32) if rest is None else rest.astype(np.float32)))
+    if out is not None:
+        out.labels = labels
+        out.timings_s = dict(timer.seconds)

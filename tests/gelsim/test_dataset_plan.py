@@ -1,0 +1,77 @@
+"""Planning logic of the dataset (no simulation): counts, splits, seeds, parsing."""
+from collections import Counter
+
+import pytest
+
+from gelsim.dataset import (GenerateConfig, apportion, parse_range, parse_ratio, parse_resolution, plan,
+                            sequence_seed)
+from gelsim.errors import GelsimError
+
+
+def test_apportion_sums_and_ratios():
+    assert apportion(50, (7, 1, 2)) == [35, 5, 10]
+    assert apportion(10, (7, 2, 1)) == [7, 2, 1]
+    assert sum(apportion(13, (7, 1, 2))) == 13
+    assert apportion(3, (1, 0, 0)) == [3, 0, 0]
+
+
+def test_plan_actions_splits_and_ids():
+    cfg = GenerateConfig(fabrics=4, sequences_per_fabric=20, frames=(25, 36))
+    specs = plan(cfg, catalog_size=100)
+    assert len(specs) == 80
+    assert len({s.id for s in specs}) == 80
+    for fid in range(1, 5):
+        mine = [s for s in specs if s.fabric_id == fid]
+        assert Counter(s.action for s in mine) == {"press": 14, "slip": 2, "twist": 4}
+        # 7:2:1 split stratified by fabric
+        assert Counter(s.split for s in mine) == {"train": 14, "val": 4, "test": 2}
+    assert all(25 <= s.num_frames <= 36 for s in specs)
+    assert len({s.seed for s in specs}) == 80
+
+
+def test_plan_is_deterministic_and_seed_dependent():
+    a = plan(GenerateConfig(fabrics=3, sequences_per_fabric=5), 100)
+    b = plan(GenerateConfig(fabrics=3, sequences_per_fabric=5), 100)
+    c = plan(GenerateConfig(fabrics=3, sequences_per_fabric=5, seed=1), 100)
+    assert a == b
+    assert [s.seed for s in a] != [s.seed for s in c]
+    # a sequence's seed does not depend on how many fabrics or sequences are planned
+    assert sequence_seed(0, 2, 3) == next(s.seed for s in a if s.fabric_id == 2 and s.index == 3)
+
+
+def test_plan_rejects_bad_fabric_count():
+    with pytest.raises(GelsimError, match="1-100"):
+        plan(GenerateConfig(fabrics=101), 100)
+    with pytest.raises(GelsimError, match="1-100"):
+        plan(GenerateConfig(fabrics=0), 100)
+
+
+def test_plan_precontact_must_leave_contact_frames():
+    with pytest.raises(GelsimError, match="precontact"):
+        plan(GenerateConfig(fabrics=1, sequences_per_fabric=3, frames=(5, 5), precontact=(5, 5)), 100)
+
+
+@pytest.mark.parametrize("text", ["7:1", "a:b:c", "7:-1:2", "0:0:0", "7:1:2:3", "nan:1:1"])
+def test_parse_ratio_rejects(text):
+    with pytest.raises(GelsimError, match="--actions"):
+        parse_ratio(text)
+
+
+def test_parse_ratio_and_range_accept():
+    assert parse_ratio("7:1:2") == (7.0, 1.0, 2.0)
+    assert parse_range("25-36", "--frames") == (25, 36)
+    assert parse_range("4", "--precontact") == (4, 4)
+    assert parse_resolution("320x240") == (320, 240)
+
+
+@pytest.mark.parametrize("text,msg", [("36-25", "inverted"), ("x-3", "malformed"), ("1-2-3", "malformed"),
+                                      ("-3-4", "malformed")])
+def test_parse_range_rejects(text, msg):
+    with pytest.raises(GelsimError, match=msg):
+        parse_range(text, "--frames")
+
+
+@pytest.mark.parametrize("text", ["320", "axb", "8x8"])
+def test_parse_resolution_rejects(text):
+    with pytest.raises(GelsimError, match="--resolution"):
+        parse_resolution(text)
