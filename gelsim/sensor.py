@@ -70,6 +70,10 @@ class LightSpec:
     intensity: float = param(1.0, lo=0.0, hi=100.0, doc="relative intensity")
     falloff_per_mm: float = param(0.0, lo=0.0, hi=10.0,
                                   doc="exponential decay of the LED's light across the gel, per mm from its rim")
+    distance_mm: float = param(0.0, lo=0.0, hi=1000.0,
+                               doc="distance of the LED from the gel centre in the gel plane, mm; it sits at "
+                                   "elevation_deg seen from the centre, so the light's direction varies across "
+                                   "the gel; 0 = just outside the image corners (the field's half-diagonal)")
 
     def validate(self, where: str) -> None:
         if any(not 0.0 <= c <= 1.0 for c in self.color_rgb):
@@ -90,7 +94,9 @@ class BackgroundSpec:
     led_tint_dn: float = param(30.0, lo=0.0, hi=255.0,
                                doc="extra brightness of each LED's colour near its own rim, 0-255")
     nonuniformity_dn: float = param(4.0, lo=0.0, hi=100.0,
-                                    doc="amplitude of the smooth random illumination field, 0-255")
+                                    doc="amplitude (standard deviation) of the smooth random illumination field, 0-255")
+    nonuniformity_scale_mm: float = param(3.0, lo=0.05, hi=1000.0, lo_open=True,
+                                          doc="correlation length of the smooth random illumination field, mm")
     image: str = param("", doc="optional background image (PNG, relative to the profile) replacing the parametric field")
 
 

@@ -1,0 +1,166 @@
+"""Photometric rendering: gel imprint + markers + sensor profile -> uint8 RGB camera frame.
+
+:class:`Renderer` is the one place that chooses a backend. Both backends compute
+only the *shading change* of the deformed membrane over the flat gel; the flat
+background, the markers, the camera blur and noise and the quantisation are
+composited identically here, so the backends differ in shading alone:
+
+* ``fast``: Lambert + Phong from surface normals under the profile's LEDs,
+  numpy/OpenCV in float32, shading only the box around the imprint
+  (:mod:`gelsim.optics.fast`);
+* ``pyrender``: the deformed gel as a mesh lit by spot lights with shadows,
+  OpenGL through OSMesa or EGL (:mod:`gelsim.optics.pyrender_backend`), the
+  yardstick for ``fast``.
+
+Pipeline per frame (all float32 DN 0-255 until the last step)::
+
+    background (cached, vignetted, blurred) + blur(shading change) x vignetting
+      -> x (1 - darkness * blur(marker coverage)) -> [area-downsample if supersampled]
+      -> + noise(sqrt(read^2 + shot_gain * signal)) -> uint8 (saturating)
+
+The camera blur is applied to the shading change and to the marker coverage
+separately rather than to their product; the background is smooth, so the
+difference is far below one DN.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..errors import GelsimError
+from .composite import NoiseBank, blur_radius_px, darken_markers, gaussian_blur, marker_corners, to_uint8
+from .field import background_float, light_maps
+
+BACKENDS = ("fast", "pyrender")
+
+__all__ = ["Renderer", "render", "available_backends", "BACKENDS"]
+
+
+def available_backends() -> list[str]:
+    """Backends that can render on this machine (``pyrender`` only if a headless GL context can be made)."""
+    out = ["fast"]
+    from .pyrender_backend import gl_available
+    if gl_available():
+        out.append("pyrender")
+    return out
+
+
+def check_depth(depth_mm, shape: tuple[int, int]) -> np.ndarray | None:
+    """Validate an imprint: float32 C-contiguous ``(H, W)`` mm, finite, >= 0 (tiny negatives clipped)."""
+    if depth_mm is None:
+        return None
+    d = np.asarray(depth_mm)
+    if d.shape != tuple(shape):
+        raise GelsimError(f"depth map has shape {d.shape} but the profile's image is {tuple(shape)} (H, W); "
+                          "compute the imprint at the profile's resolution or use profile.with_resolution")
+    if not np.issubdtype(d.dtype, np.number):
+        raise GelsimError(f"depth map has dtype {d.dtype}; give float32 millimetres")
+    d = np.ascontiguousarray(d, dtype=np.float32)
+    lo, hi = float(d.min()), float(d.max())
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        raise GelsimError("depth map contains NaN or infinity; check the imprint computation")
+    # float error of an imprint model may leave -1e-7 mm; a real negative depth is a sign error
+    if lo < -1e-3:
+        raise GelsimError(f"depth map has negative values (min {lo:.4g} mm); the imprint is the depth "
+                          "pushed into the gel, >= 0")
+    if lo < 0:
+        d = np.maximum(d, 0.0)
+    return d
+
+
+class Renderer:
+    """Renders frames of one sensor.
+
+    ``profile``: a :class:`~gelsim.sensor.SensorProfile`; ``backend``: ``"fast"``
+    or ``"pyrender"``; ``supersample``: shade and draw at this many times the
+    resolution (1-4), then area-average down; ``seed``: fixes the background's
+    random illumination field and the noise bank.
+    """
+
+    def __init__(self, profile, backend: str = "fast", *, supersample: int = 1, seed: int = 0):
+        if backend not in BACKENDS:
+            raise GelsimError(f"unknown render backend {backend!r}; choose one of {', '.join(BACKENDS)}")
+        if isinstance(supersample, bool) or not isinstance(supersample, (int, np.integer)) \
+                or not 1 <= supersample <= 4:
+            raise GelsimError(f"supersample {supersample!r} is invalid; give an integer from 1 to 4")
+        self.profile = profile
+        self.backend = backend
+        self.supersample = int(supersample)
+        self.seed = int(seed)
+        h, w = profile.shape
+        s = self.supersample
+        self._fine = profile if s == 1 else profile.with_resolution(w * s, h * s)
+        maps = light_maps(self._fine)
+        self._blur_fine = profile.camera.blur_sigma_px * s
+        bg = gaussian_blur(background_float(self._fine, maps, self.seed), self._blur_fine)
+        self._bg_fine = bg
+        self._bg = bg if s == 1 else cv2.resize(bg, (w, h), interpolation=cv2.INTER_AREA)
+        if backend == "fast":
+            from .fast import FastShader
+            self._shader = FastShader(self._fine, maps)
+        else:
+            from .pyrender_backend import PyrenderShader
+            self._shader = PyrenderShader(self._fine, maps)
+        n = profile.noise
+        self._noise = NoiseBank(profile.shape, n.read_sigma_dn, n.shot_gain, self.seed)
+
+    def background(self) -> np.ndarray:
+        """The flat gel without markers or noise: uint8 ``(H, W, 3)`` RGB."""
+        return to_uint8(self._bg)
+
+    def background_float(self) -> np.ndarray:
+        """The flat gel without markers or noise, unquantised: float32 ``(H, W, 3)`` DN (a copy)."""
+        return self._bg.copy()
+
+    def render_float(self, depth_mm: np.ndarray | None, markers=None) -> np.ndarray:
+        """The noiseless, unquantised frame: float32 ``(H, W, 3)`` DN (may leave 0-255 before saturation)."""
+        depth = check_depth(depth_mm, self.profile.shape)
+        corners = marker_corners(markers) if self.profile.markers.enabled else None
+        s = self.supersample
+        if s > 1:
+            h, w = self._fine.shape
+            if depth is not None:
+                depth = cv2.resize(depth, (w, h), interpolation=cv2.INTER_LINEAR)
+            if corners is not None:
+                # pixel centres at integers at both resolutions: x_fine = s (x + 1/2) - 1/2
+                corners = s * (corners + 0.5) - 0.5
+        frame = self._bg_fine.copy()
+        if depth is not None:
+            res = self._shader.delta(depth, margin_px=blur_radius_px(self._blur_fine))
+            if res is not None:
+                roi, delta = res
+                frame[roi] += gaussian_blur(delta, self._blur_fine)
+        if corners is not None:
+            darken_markers(frame, corners, self.profile.markers.darkness, self._blur_fine)
+        if s > 1:
+            frame = cv2.resize(frame, self.profile.shape[::-1], interpolation=cv2.INTER_AREA)
+        return frame
+
+    def render(self, depth_mm: np.ndarray | None, markers=None, *, seed: int | np.random.Generator = 0,
+               noise: bool = True) -> np.ndarray:
+        """One camera frame: uint8 ``(H, W, 3)`` RGB.
+
+        ``depth_mm``: float32 ``(H, W)`` imprint in mm (>= 0), or None for a flat
+        gel; ``markers``: an object with ``.corners_px`` float32 ``(N, 4, 2)``
+        (x, y) px, such an array, or None; ``seed``: picks this frame's noise
+        (same seed, same frame); ``noise``: False for a noiseless frame.
+        """
+        frame = self.render_float(depth_mm, markers)
+        if noise and self._noise.active:
+            return self._noise.apply(frame, seed)
+        return to_uint8(frame)
+
+    def close(self) -> None:
+        """Free the backend's resources (the GL context for pyrender)."""
+        close = getattr(self._shader, "close", None)
+        if close:
+            close()
+
+
+def render(depth_mm, markers, profile, *, backend: str = "fast", seed: int = 0) -> np.ndarray:
+    """One frame with a throw-away :class:`Renderer` (background seed and noise seed both ``seed``)."""
+    r = Renderer(profile, backend, seed=seed)
+    try:
+        return r.render(depth_mm, markers, seed=seed)
+    finally:
+        r.close()
