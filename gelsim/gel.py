@@ -1,0 +1,556 @@
+"""The gel imprint: how far an object pressed into the elastomer pushes its surface in.
+
+Input is the object's *protrusion* map in the sensor frame (``float32 (H, W)``, mm,
+largest where the object touches first, see :mod:`gelsim.indenters`) and either the
+normal force (N) or the rigid-body approach (mm). Output is an :class:`Imprint`:
+the depth the gel surface is pushed in (``>= 0``, 0 where untouched), the contact
+mask, indentation, force and contact area.
+
+Two models, chosen by ``fidelity.imprint_model`` and computed on a grid of
+``fidelity.imprint_scale`` times the image resolution (then resampled):
+
+``"elastic"`` (reference)
+    Frictionless contact of a rigid (optionally Winkler-supported) object with an
+    elastic layer of thickness ``h`` bonded to a rigid base. Surface displacement is
+    ``u = K * p`` with ``K`` the layer's surface Green's function: the Boussinesq
+    half-space part integrated exactly over each pixel (Love 1929) plus a smooth
+    finite-thickness correction from the layer's Fourier compliance
+    ``U(q) = 2 (1 - nu^2) / (E q) * S(q h)``, with
+    ``S(x) = ((3-4nu) sinh 2x - 2x) / ((3-4nu) cosh 2x + 2x^2 + (1 + (3-4nu)^2) / 2)``
+    (frictionless top, bonded base; ``S -> 1`` gives the half-space, ``S ~ x (1-2nu) /
+    (2 (1-nu)^2)`` the uniaxial-strain limit of a thin layer). Convolutions are linear
+    (zero-padded FFT). The contact problem (``p >= 0``, gap ``>= 0``, ``p * gap = 0``, total
+    force or approach prescribed) is solved with the constrained conjugate-gradient
+    method of Polonsky and Keer (Wear 1999). A fabric's through-thickness compliance
+    is a Winkler layer under the object's surface: it adds ``p / k_s`` to the gap.
+
+``"pyramid"`` (fast, after Taxim, Si and Yuan 2022)
+    The object's penetration ``I = max(P - (P_max - delta), 0)`` spread by a Gaussian
+    pyramid (coarse to fine, each level clamped to stay at or above ``I``: the gel
+    never passes through the object), then the membrane blur. Force and approach are
+    tied by ``F = c E* V / sqrt(A) / S(kappa h / a)``, with ``V`` the penetration
+    volume, ``A`` its area, ``a = sqrt(A / pi)``; ``c`` and ``kappa`` are fitted to the
+    elastic model and stored in ``assets/imprint_law.toml`` (see :func:`fit_pyramid_law`).
+    For a sphere on a half-space the law is Hertz's with ``c = (4/3) sqrt(2/pi) =
+    1.064``; for a flat punch ``c = 2 / sqrt(pi) = 1.128``.
+
+Both models clip the approach at ``gel.max_indentation_mm`` (the pad bottoms out; the
+force beyond is carried by the sensor's frame and ``bottomed_out`` is set) and work
+only over the touched region (bounding box of the possible contact plus a margin).
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from scipy import fft as sfft
+from scipy.special import j0
+
+from .errors import GelsimError
+from .params import ASSETS_DIR, build, load_toml, param
+
+LAW_FILE = ASSETS_DIR / "imprint_law.toml"
+
+# Polonsky-Keer stopping rule: relative change of the pressure field (L1) per
+# iteration. 1e-6 puts the solver's error well below the pixel discretisation error
+# (about 1% on a contact radius of 10 px).
+_CG_TOL = 1e-6
+_CG_MAXIT = 2000
+# Beyond x = q h = 20 the layer factor S differs from 1 by < 1e-15 (terms in exp(-2x)).
+_S_X_MAX = 20.0
+
+
+# --------------------------------------------------------------------------------------
+# Results and parameters
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Imprint:
+    """The gel's response to one pressed object, at image resolution.
+
+    depth_mm: float32 (H, W), how far the gel surface is pushed in, mm, >= 0, 0 where untouched.
+    contact_mask: bool (H, W), object and gel in contact.
+    indentation_mm: rigid-body approach of the object into the gel, mm (deepest penetration).
+    normal_force_n: normal force carried by the gel, N (below the request if bottomed out).
+    contact_area_mm2: area in contact, mm^2.
+    bottomed_out: the approach reached ``gel.max_indentation_mm`` and was clipped there.
+    """
+    depth_mm: np.ndarray
+    contact_mask: np.ndarray
+    indentation_mm: float
+    normal_force_n: float
+    contact_area_mm2: float
+    bottomed_out: bool
+
+
+@dataclass(frozen=True)
+class ImprintLaw:
+    """Constants of the pyramid model's force law, fitted to the elastic model."""
+    force_coef: float = param(lo=0.1, hi=10.0, doc="c in F = c E* V / sqrt(A) / S(kappa h / a)")
+    layer_kappa: float = param(lo=0.01, hi=100.0, doc="kappa: the contact size's wavenumber, q = kappa / a")
+    pyramid_sigma_per_thickness: float = param(lo=0.01, hi=10.0,
+                                               doc="blur of the coarsest pyramid level, in gel thicknesses")
+    contact_fraction: float = param(0.5, lo=0.0, hi=1.0,
+                                    doc="pixels whose penetration is at least this fraction of the approach are in contact")
+    fitted_poisson_ratio: float = param(0.48, lo=0.0, hi=0.5, doc="Poisson's ratio of the fit")
+    fitted_thickness_mm: float = param(2.0, lo=0.1, hi=20.0, doc="gel thickness of the fit")
+    note: str = ""
+
+
+@functools.cache
+def imprint_law() -> ImprintLaw:
+    """The pyramid model's force-law constants from ``assets/imprint_law.toml``."""
+    return build(ImprintLaw, load_toml(LAW_FILE).get("law", {}), where="imprint_law.law")
+
+
+def effective_modulus_mpa(gel) -> float:
+    """E* = E / (1 - nu^2) of the gel against a rigid object, MPa."""
+    return gel.young_modulus_mpa / (1.0 - gel.poisson_ratio ** 2)
+
+
+def hertz(diameter_mm: float, force_n: float, gel) -> tuple[float, float]:
+    """Hertz contact of a rigid sphere on the gel as a half-space.
+
+    Returns ``(contact_radius_mm, indentation_mm)``: ``a = (3 F R / (4 E*))^(1/3)``,
+    ``d = a^2 / R`` with ``1/E* = (1 - nu^2) / E`` (E in MPa = N/mm^2).
+    """
+    if not (diameter_mm > 0 and math.isfinite(diameter_mm)):
+        raise GelsimError(f"sphere diameter {diameter_mm} mm is not positive; give a diameter > 0")
+    if not (force_n >= 0 and math.isfinite(force_n)):
+        raise GelsimError(f"force {force_n} N is negative or not finite; give a force >= 0")
+    r = diameter_mm / 2.0
+    a = (3.0 * force_n * r / (4.0 * effective_modulus_mpa(gel))) ** (1.0 / 3.0)
+    return a, a * a / r
+
+
+def measure_contact_radius_mm(imprint: Imprint, mm_per_px: float) -> float:
+    """Radius of the circle with the imprint's contact area, mm (``mm_per_px`` is kept
+    for callers that measure from the mask; the area already carries the scale)."""
+    if imprint.contact_area_mm2 > 0:
+        return math.sqrt(imprint.contact_area_mm2 / math.pi)
+    n = int(np.count_nonzero(imprint.contact_mask))
+    return math.sqrt(n / math.pi) * mm_per_px
+
+
+# --------------------------------------------------------------------------------------
+# Elastic layer: Green's function
+# --------------------------------------------------------------------------------------
+def layer_factor(x: np.ndarray, nu: float) -> np.ndarray:
+    """S(q h): the bonded layer's normal compliance relative to the half-space's (float64)."""
+    x = np.asarray(x, dtype=np.float64)
+    out = np.ones_like(x)
+    m = x < _S_X_MAX
+    xm = x[m]
+    k = 3.0 - 4.0 * nu
+    num = k * np.sinh(2.0 * xm) - 2.0 * xm
+    den = k * np.cosh(2.0 * xm) + 2.0 * xm * xm + 0.5 * (1.0 + k * k)
+    out[m] = num / den
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _layer_correction_table(nu: float, rho_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """G(rho) = int_0^inf (S(x) - 1) J0(x rho) dx on rho in [0, rho_max].
+
+    The layer's kernel is ``(1 - nu^2) / (pi E) * (1 / r + G(r / h) / h)``. The integrand
+    decays as exp(-2x); the step resolves J0's period 2 pi / rho_max ten times over.
+    """
+    n_rho = 1024  # G varies over rho ~ 1; 1024 samples keep linear interpolation < 1e-5 off
+    rho = np.linspace(0.0, rho_max, n_rho)
+    dx = min(0.01, 2 * math.pi / rho_max / 40.0)
+    x = np.arange(0.0, _S_X_MAX + dx, dx)
+    w = np.full(x.shape, dx)
+    w[0] = w[-1] = dx / 2
+    f = (layer_factor(x, nu) - 1.0) * w
+    g = np.empty(n_rho)
+    for i in range(0, n_rho, 128):  # blocks keep the J0 matrix to a few MB
+        g[i:i + 128] = j0(np.outer(rho[i:i + 128], x)) @ f
+    return rho, g
+
+
+def _love(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Antiderivative F with d2F/dxdy = 1/r (Love 1929), finite on the axes."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ax, ay = np.abs(x), np.abs(y)
+        t1 = np.where(ax > 0, x * np.arcsinh(y / np.where(ax > 0, ax, 1.0)), 0.0)
+        t2 = np.where(ay > 0, y * np.arcsinh(x / np.where(ay > 0, ay, 1.0)), 0.0)
+    return t1 + t2
+
+
+@functools.lru_cache(maxsize=16)
+def _kernel_fft(ny: int, nx: int, dx: float, e_mpa: float, nu: float, h_mm: float) -> np.ndarray:
+    """rfft2 of the layer's influence coefficients on the zero-padded (2 ny, 2 nx) grid.
+
+    Coefficient (i, j): displacement (mm) at a pixel centre per unit pressure (MPa) on a
+    pixel (i, j) away. Wrapped indices make the circular convolution linear.
+    """
+    iy = np.arange(2 * ny)
+    iy = np.where(iy < ny, iy, iy - 2 * ny) * dx
+    ix = np.arange(2 * nx)
+    ix = np.where(ix < nx, ix, ix - 2 * nx) * dx
+    y, x = np.meshgrid(iy, ix, indexing="ij")
+    a = dx / 2
+    love = _love(x + a, y + a) - _love(x + a, y - a) - _love(x - a, y + a) + _love(x - a, y - a)
+    r = np.hypot(x, y)
+    rho_needed = float(r.max() / h_mm) * 1.01 + 1e-6
+    rho_max = 2.0 ** math.ceil(math.log2(max(rho_needed, 1.0)))  # fewer distinct tables to cache
+    rho, g = _layer_correction_table(nu, rho_max)
+    corr = np.interp(r / h_mm, rho, g) / h_mm * dx * dx
+    k = (1.0 - nu * nu) / (math.pi * e_mpa) * (love + corr)
+    return sfft.rfft2(k, workers=1)
+
+
+class _Operator:
+    """u = K * p on an (ny, nx) window, plus the Winkler support's p / k_s."""
+
+    def __init__(self, shape: tuple[int, int], dx: float, gel, support_compliance: float):
+        self.ny, self.nx = shape
+        self.s = (2 * self.ny, 2 * self.nx)
+        self.kf = _kernel_fft(self.ny, self.nx, float(dx), float(gel.young_modulus_mpa),
+                              float(gel.poisson_ratio), float(gel.thickness_mm))
+        self.cs = support_compliance
+
+    def gel(self, p: np.ndarray) -> np.ndarray:
+        u = sfft.irfft2(sfft.rfft2(p, s=self.s, workers=1) * self.kf, s=self.s, workers=1)
+        return u[: self.ny, : self.nx]
+
+    def __call__(self, p: np.ndarray) -> np.ndarray:
+        u = self.gel(p)
+        return u + self.cs * p if self.cs else u
+
+
+def _pk_solve(op: _Operator, h: np.ndarray, area: float, *, force: float | None = None,
+              delta: float | None = None, p0: np.ndarray) -> tuple[np.ndarray, float]:
+    """Polonsky-Keer constrained CG. ``h``: object surface relative to its first touch
+    (P - P_max, mm, <= 0). Force control (``force``, N) or approach control (``delta``, mm).
+    Returns (pressure MPa, approach mm)."""
+    force_ctl = force is not None
+    target = h if force_ctl else h + delta
+    p = p0.astype(np.float64).copy()
+    if force_ctl:
+        p *= force / (area * p.sum())
+    t = np.zeros_like(p)
+    g_old, d = 1.0, 0.0
+    gbar = 0.0
+    for _ in range(_CG_MAXIT):
+        ic = p > 0
+        if not ic.any():
+            break
+        g = op(p) - target
+        if force_ctl:
+            gbar = float(g[ic].mean())
+            g -= gbar
+        gg = float(np.dot(g[ic], g[ic]))
+        t[ic] = g[ic] + (d * gg / g_old) * t[ic]
+        t[~ic] = 0.0
+        g_old = max(gg, 1e-300)
+        r = op(t)
+        if force_ctl:
+            r -= float(r[ic].mean())
+        den = float(np.dot(r[ic], t[ic]))
+        if den == 0.0:
+            break
+        tau = float(np.dot(g[ic], t[ic])) / den
+        p_old = p.copy()
+        p[ic] -= tau * t[ic]
+        np.maximum(p, 0.0, out=p)
+        iol = (p == 0) & (g < 0)
+        if iol.any():
+            d = 0.0
+            p[iol] -= tau * g[iol]
+        else:
+            d = 1.0
+        if force_ctl:
+            s = p.sum()
+            if s <= 0:
+                break
+            p *= force / (area * s)
+        s = p.sum()
+        if s <= 0 or np.abs(p - p_old).sum() / s < _CG_TOL:
+            break
+    if force_ctl:
+        ic = p > 0
+        u = op(p) - h
+        delta = float(u[ic].mean()) if ic.any() else 0.0
+    return p, float(delta)
+
+
+# --------------------------------------------------------------------------------------
+# Pyramid law and smoothing
+# --------------------------------------------------------------------------------------
+def _law_force(vol: np.ndarray, area: np.ndarray, gel, ks: float | None) -> np.ndarray:
+    """Pyramid-model force (N) for penetration volume (mm^3) and area (mm^2)."""
+    law = imprint_law()
+    estar = effective_modulus_mpa(gel)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.sqrt(area / math.pi)
+        s = layer_factor(np.where(a > 0, law.layer_kappa * gel.thickness_mm / np.where(a > 0, a, 1.0),
+                                  _S_X_MAX), gel.poisson_ratio)
+        kg = np.where(area > 0, law.force_coef * estar / (np.sqrt(np.maximum(area, 1e-300)) * s), 0.0)
+        if ks:
+            kg = np.where(kg > 0, kg * ks / (kg + ks), 0.0)
+    return kg * vol
+
+
+def _penetration_stats(v: np.ndarray, cell_area: float, vmax: float, n_bins: int = 2048):
+    """Area (mm^2) and volume (mm^3) penetrated at approach ``edges``: histogram form.
+
+    ``v`` = P_max - P (mm) of the sampled pixels. Bins are vmax / 2048 wide: at most
+    half a micrometre for the pads we simulate, far below any relief that shades.
+    """
+    v = v[v < vmax]
+    edges = np.linspace(0.0, vmax, n_bins + 1)
+    idx = np.minimum((v * (n_bins / vmax)).astype(np.int64), n_bins - 1)
+    cnt = np.bincount(idx, minlength=n_bins).astype(np.float64)
+    vsum = np.bincount(idx, weights=v.astype(np.float64), minlength=n_bins)
+    c_cnt = np.concatenate([[0.0], np.cumsum(cnt)])
+    c_v = np.concatenate([[0.0], np.cumsum(vsum)])
+    area = c_cnt * cell_area
+    vol = (edges * c_cnt - c_v) * cell_area
+    return edges, area, vol
+
+
+def _resize(img: np.ndarray, shape: tuple[int, int], interp=cv2.INTER_LINEAR) -> np.ndarray:
+    if img.shape == shape:
+        return img
+    return cv2.resize(img, (shape[1], shape[0]), interpolation=interp)
+
+
+def _pyramid_spread(pen: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Gel surface from the penetration map: coarse-to-fine Gaussian pyramid.
+
+    Level l has pixels 2^l times larger and blurs by ``_LEVEL_SIGMA`` of its own pixels,
+    so the blurs halve from the coarsest (``sigma_px``) down to the image grid, like
+    Taxim's kernels 201, 101, ... 5 px; after each level the surface is lifted back to
+    the penetration (the gel cannot pass through the object).
+    """
+    levels = max(0, int(math.floor(math.log2(max(sigma_px / _LEVEL_SIGMA, 1.0)))))
+    pens = [pen]
+    for _ in range(levels):
+        prev = pens[-1]
+        if min(prev.shape) < 4:
+            break
+        pens.append(cv2.resize(prev, ((prev.shape[1] + 1) // 2, (prev.shape[0] + 1) // 2),
+                               interpolation=cv2.INTER_AREA))
+    d = pens[-1]
+    for lvl in range(len(pens) - 1, -1, -1):
+        if d.shape != pens[lvl].shape:
+            d = cv2.resize(d, (pens[lvl].shape[1], pens[lvl].shape[0]), interpolation=cv2.INTER_LINEAR)
+        d = cv2.GaussianBlur(d, (0, 0), _LEVEL_SIGMA, borderType=cv2.BORDER_CONSTANT)
+        np.maximum(d, pens[lvl], out=d)
+    return d
+
+
+# Blur per pyramid level in that level's pixels: one sigma of 1 px per octave keeps
+# neighbouring levels' kernels overlapping (a 2x coarser grid with sigma 1 px is a
+# sigma of 2 px here), the analogue of Taxim's halving kernel sizes.
+_LEVEL_SIGMA = 1.0
+
+
+def _membrane_blur(depth: np.ndarray, sigma_px: float) -> np.ndarray:
+    # Below a third of a pixel a Gaussian changes nothing visible in the image.
+    if sigma_px < 0.33:
+        return depth
+    return cv2.GaussianBlur(depth, (0, 0), sigma_px, borderType=cv2.BORDER_CONSTANT)
+
+
+# --------------------------------------------------------------------------------------
+# press
+# --------------------------------------------------------------------------------------
+def _check_inputs(protrusion_mm, profile, fidelity, force_n, depth_mm, support):
+    if (force_n is None) == (depth_mm is None):
+        raise GelsimError("give exactly one of force_n and depth_mm to press()")
+    for name, val in (("force_n", force_n), ("depth_mm", depth_mm),
+                      ("support_stiffness_kpa_per_mm", support)):
+        if val is not None and not (math.isfinite(val) and val >= 0):
+            raise GelsimError(f"{name} = {val} is negative or not finite; give a finite value >= 0")
+    if support is not None and support == 0:
+        raise GelsimError("support_stiffness_kpa_per_mm = 0 carries no load; give a stiffness > 0 or None (rigid)")
+    p = np.asarray(protrusion_mm)
+    if p.ndim != 2:
+        raise GelsimError(f"protrusion map has shape {p.shape}; give a 2-D (H, W) array in mm")
+    if not np.isfinite(p).all():
+        raise GelsimError("protrusion map has NaN or Inf values; give finite heights in mm")
+    return p
+
+
+def _work_shape(profile, scale: float) -> tuple[int, int]:
+    h, w = profile.shape
+    return max(8, round(h * scale)), max(8, round(w * scale))
+
+
+def _bbox(mask: np.ndarray, margin: int, shape) -> tuple[slice, slice] | None:
+    rows = np.flatnonzero(mask.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(mask.any(axis=0))
+    r0, r1 = max(0, rows[0] - margin), min(shape[0], rows[-1] + 1 + margin)
+    c0, c1 = max(0, cols[0] - margin), min(shape[1], cols[-1] + 1 + margin)
+    return slice(r0, r1), slice(c0, c1)
+
+
+def _fast_len(n: int) -> int:
+    return sfft.next_fast_len(n, real=True)
+
+
+def _no_contact(profile) -> Imprint:
+    return Imprint(np.zeros(profile.shape, np.float32), np.zeros(profile.shape, bool), 0.0, 0.0, 0.0, False)
+
+
+def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None = None,
+          depth_mm: float | None = None, support_stiffness_kpa_per_mm: float | None = None,
+          window: str = "touched") -> Imprint:
+    """Press an object into the gel.
+
+    protrusion_mm: (H, W) protrusion map in mm at the profile's image resolution, or
+        already at ``fidelity.imprint_scale`` times it (same field of view).
+    force_n: normal force, N (0 = no contact); or depth_mm: approach past first touch, mm.
+    support_stiffness_kpa_per_mm: Winkler stiffness under the object's surface (a fabric:
+        compressive modulus / thickness), kPa/mm; None = rigid object.
+    window: "touched" computes over the touched region only (default); "full" over the whole
+        frame (for checking the former).
+    Returns an :class:`Imprint` at the profile's image resolution (float32 depth).
+    """
+    from .fidelity import get_fidelity
+
+    fidelity = get_fidelity(fidelity)
+    prot = _check_inputs(protrusion_mm, profile, fidelity, force_n, depth_mm, support_stiffness_kpa_per_mm)
+    if (force_n is not None and force_n == 0) or (depth_mm is not None and depth_mm == 0):
+        return _no_contact(profile)
+    gel = profile.gel
+    ws = _work_shape(profile, fidelity.imprint_scale)
+    if prot.shape == profile.shape:
+        work = _resize(np.ascontiguousarray(prot, dtype=np.float32), ws, cv2.INTER_AREA)
+    elif prot.shape == ws:
+        work = np.ascontiguousarray(prot, dtype=np.float32)
+    else:
+        raise GelsimError(f"protrusion map is {prot.shape}; give {profile.shape} (the profile's image) "
+                          f"or {ws} (its imprint grid)")
+    dx = profile.image.mm_per_px * profile.shape[1] / ws[1]
+    ks = None if support_stiffness_kpa_per_mm is None else support_stiffness_kpa_per_mm * 1e-3  # MPa/mm
+    if fidelity.imprint_model == "elastic":
+        out = _press_elastic(work, dx, gel, force_n, depth_mm, ks, window)
+    else:
+        out = _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window)
+    depth_w, mask_w, delta, force, bottomed = out
+    depth = _resize(depth_w, profile.shape)
+    mask = mask_w if mask_w.shape == profile.shape else _resize(mask_w.astype(np.float32), profile.shape) >= 0.5
+    depth = np.nan_to_num(np.maximum(depth, 0.0), nan=0.0, posinf=0.0).astype(np.float32, copy=False)
+    area = float(np.count_nonzero(mask_w)) * dx * dx
+    return Imprint(depth, mask, float(delta), float(force), area, bool(bottomed))
+
+
+def _pen_window(work: np.ndarray, v: np.ndarray, delta: float, margin_px: int, window: str):
+    if window == "full":
+        return slice(0, work.shape[0]), slice(0, work.shape[1])
+    return _bbox(v < delta, margin_px, work.shape)
+
+
+def _law_delta(work: np.ndarray, v: np.ndarray, dx: float, gel, force: float, ks) -> tuple[float, bool]:
+    """Approach (mm) the pyramid law gives for ``force`` (N), and whether it bottomed out."""
+    vmax = gel.max_indentation_mm
+    cand = v < vmax
+    n = int(np.count_nonzero(cand))
+    stride = max(1, int(math.sqrt(n / 40000.0)))  # ~40k samples fix A and V within ~0.5%
+    vs = v[::stride, ::stride]
+    edges, area, vol = _penetration_stats(vs.ravel(), dx * dx * stride * stride, vmax)
+    f = _law_force(vol, area, gel, ks)
+    f = np.maximum.accumulate(f)
+    if force >= f[-1]:
+        return vmax, True
+    return float(np.interp(force, f, edges)), False
+
+
+def _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window):
+    law = imprint_law()
+    pmax = float(work.max())
+    v = pmax - work
+    bottomed = False
+    if force_n is not None:
+        delta, bottomed = _law_delta(work, v, dx, gel, force_n, ks)
+    else:
+        delta = float(depth_mm)
+        if delta >= gel.max_indentation_mm:
+            delta, bottomed = gel.max_indentation_mm, True
+    sigma_px = law.pyramid_sigma_per_thickness * gel.thickness_mm / dx
+    margin = int(math.ceil(3 * sigma_px))  # a Gaussian is < 1.2% of its peak beyond 3 sigma
+    sl = _pen_window(work, v, delta, margin, window)
+    depth = np.zeros(work.shape, np.float32)
+    mask = np.zeros(work.shape, bool)
+    if sl is None or delta <= 0:
+        return depth, mask, 0.0, 0.0, False
+    pen = np.maximum(np.float32(delta) - v[sl], 0.0)
+    vol = float(pen.sum(dtype=np.float64)) * dx * dx
+    pen_area = float(np.count_nonzero(pen)) * dx * dx
+    force = float(_law_force(np.array(vol), np.array(pen_area), gel, ks))
+    if force_n is not None and not bottomed:
+        force = float(force_n)
+    scale = 1.0
+    if ks:
+        kg = float(_law_force(np.array(1.0), np.array(pen_area), gel, None))
+        scale = ks / (kg + ks)  # gel's share of the penetration, springs in series
+    d = _pyramid_spread(pen * np.float32(scale), sigma_px)
+    d = _membrane_blur(d, gel.membrane_smoothing_mm / dx)
+    depth[sl] = d
+    mask[sl] = pen >= law.contact_fraction * delta
+    return depth, mask, delta, force, bottomed
+
+
+def _press_elastic(work, dx, gel, force_n, depth_mm, ks, window):
+    pmax = float(work.max())
+    v = (pmax - work).astype(np.float64)
+    cs = 0.0 if not ks else 1.0 / ks
+    area = dx * dx
+    h_mm = gel.thickness_mm
+    # The layer's displacement falls below 2% of its peak within 3 thicknesses of the
+    # contact (bonded base); the half-space's 1/r tail is cut at the frame's edge.
+    out_margin = int(math.ceil(3.0 * h_mm / dx))
+    bottomed = False
+    full = window == "full"
+    if force_n is not None:
+        guess, _ = _law_delta(work, v, dx, gel, force_n, None if not ks else ks)
+        bound = min(max(2.0 * guess, 1e-4), gel.max_indentation_mm)  # 0.1 um floor: a first guess only
+        while True:
+            sl = _pen_window(work, v, bound, 2, "full" if full else "touched")
+            op = _Operator((sl[0].stop - sl[0].start, sl[1].stop - sl[1].start), dx, gel, cs)
+            hh = -v[sl]
+            p0 = np.maximum(bound * 0.5 + hh, 0.0) + (hh >= -1e-12)
+            p, delta = _pk_solve(op, hh, area, force=force_n, p0=p0)
+            if delta <= bound or bound >= gel.max_indentation_mm:
+                break
+            bound = min(2.0 * bound, gel.max_indentation_mm)
+        if delta > gel.max_indentation_mm:
+            depth_mm, bottomed = gel.max_indentation_mm, True
+    if depth_mm is not None:
+        delta = float(depth_mm)
+        if delta > gel.max_indentation_mm:
+            delta, bottomed = gel.max_indentation_mm, True
+        sl = _pen_window(work, v, delta, 2, "full" if full else "touched")
+        if sl is None:
+            return np.zeros(work.shape, np.float32), np.zeros(work.shape, bool), 0.0, 0.0, False
+        op = _Operator((sl[0].stop - sl[0].start, sl[1].stop - sl[1].start), dx, gel, cs)
+        hh = -v[sl]
+        p0 = np.maximum(delta + hh, 0.0) * (effective_modulus_mpa(gel) / h_mm)
+        p, _ = _pk_solve(op, hh, area, delta=delta, p0=p0)
+    force = float(p.sum() * area)
+    # Displacement over the output window (contact window + margin): one more convolution.
+    ny, nx = work.shape
+    r0, r1 = sl[0].start, sl[0].stop
+    c0, c1 = sl[1].start, sl[1].stop
+    if full:
+        R0, R1, C0, C1 = 0, ny, 0, nx
+    else:
+        R0, R1 = max(0, r0 - out_margin), min(ny, r1 + out_margin)
+        C0, C1 = max(0, c0 - out_margin), min(nx, c1 + out_margin)
+    big = np.zeros((R1 - R0, C1 - C0))
+    big[r0 - R0:r1 - R0, c0 - C0:c1 - C0] = p
+    u = _Operator(big.shape, dx, gel, 0.0).gel(big)
+    depth = np.zeros(work.shape, np.float32)
+    mask = np.zeros(work.shape, bool)
+    depth[R0:R1, C0:C1] = _membrane_blur(np.maximum(u, 0.0).astype(np.float32), gel.membrane_smoothing_mm / dx)
+    mask[sl] = p > 0
+    return depth, mask, delta, force, bottomed
