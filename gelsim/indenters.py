@@ -1,0 +1,166 @@
+"""Indenters other than fabrics: sphere, cylinder and any triangle mesh, as protrusion maps.
+
+A *protrusion* map says how far the object's surface stands out towards the gel, in mm,
+on the sensor's image grid (``float32 (H, W)``): ``>= 0``, largest where the object
+touches first, 0 where the object is absent. Only differences from the maximum matter
+to :func:`gelsim.gel.press`. Grids follow the sensor frame (origin at the image centre,
+``x`` along columns, ``y`` down the rows, mm); ``scale`` computes on a grid of
+``scale`` times the image resolution over the same field of view.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .errors import GelsimError
+
+MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
+
+
+def _grid(profile, scale: float, center_mm) -> tuple[np.ndarray, np.ndarray, float]:
+    """Pixel-centre coordinates (x row vector, y column vector) relative to the centre, mm."""
+    if not (0 < scale <= 8 and math.isfinite(scale)):
+        raise GelsimError(f"scale {scale} is out of range; give 0 < scale <= 8")
+    h, w = profile.shape
+    hs, ws = max(1, round(h * scale)), max(1, round(w * scale))
+    dx = profile.image.mm_per_px * w / ws
+    cx, cy = (float(c) for c in center_mm)
+    x = (np.arange(ws) - (ws - 1) / 2.0) * dx - cx
+    y = (np.arange(hs) - (hs - 1) / 2.0) * dx - cy
+    return x[None, :], y[:, None], dx
+
+
+def _positive(name: str, value, unit: str = "mm") -> float:
+    if value is None or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise GelsimError(f"{name} = {value!r} is not a positive number; give a value > 0 {unit}")
+    return float(value)
+
+
+def sphere(diameter_mm: float, profile, *, center_mm=(0.0, 0.0), scale: float = 1.0) -> np.ndarray:
+    """A rigid sphere of ``diameter_mm`` over the point ``center_mm`` (x, y) of the gel.
+
+    Protrusion ``sqrt(R^2 - r^2)`` inside its outline, 0 outside: float32 (H, W), mm.
+    """
+    r = _positive("diameter_mm", diameter_mm) / 2.0
+    x, y, _ = _grid(profile, scale, center_mm)
+    r2 = x * x + y * y
+    return np.sqrt(np.maximum(r * r - r2, 0.0)).astype(np.float32)
+
+
+def cylinder(diameter_mm: float, profile, *, length_mm: float | None = None, angle_deg: float = 0.0,
+             center_mm=(0.0, 0.0), scale: float = 1.0) -> np.ndarray:
+    """A rigid cylinder lying on its side (axis parallel to the gel), flat ends.
+
+    The axis runs through ``center_mm`` at ``angle_deg`` from +x towards +y; ``length_mm``
+    None means longer than the field of view. Protrusion ``sqrt(R^2 - d^2)`` with ``d`` the
+    distance from the axis, 0 beyond the ends: float32 (H, W), mm.
+    """
+    r = _positive("diameter_mm", diameter_mm) / 2.0
+    if length_mm is not None:
+        length_mm = _positive("length_mm", length_mm)
+    if not math.isfinite(angle_deg):
+        raise GelsimError(f"angle_deg = {angle_deg} is not finite; give an angle in degrees")
+    x, y, _ = _grid(profile, scale, center_mm)
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    along = x * c + y * s
+    across = -x * s + y * c
+    out = np.sqrt(np.maximum(r * r - across * across, 0.0))
+    if length_mm is not None:
+        out = np.where(np.abs(along) <= length_mm / 2.0, out, 0.0)
+    return np.ascontiguousarray(np.broadcast_to(out, (y.shape[0], x.shape[1])), dtype=np.float32)
+
+
+def mesh(path: str | Path, profile, *, center_mm=(0.0, 0.0), scale: float = 1.0) -> np.ndarray:
+    """Any mesh trimesh can read (units mm), approaching the gel along -z (its lowest side first).
+
+    The mesh's x-y bounding-box centre is placed over ``center_mm``. Protrusion is the
+    height of the mesh's lower surface below its top, ``z_max - z_bottom(x, y)``, 0 outside
+    its footprint: float32 (H, W), mm (triangles rasterised at pixel centres).
+    """
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise GelsimError(f"indenter mesh {path} not found; give an existing .stl/.obj file")
+    try:
+        m = trimesh.load(str(path), force="mesh")
+    except Exception as e:  # trimesh raises many kinds of errors on bad files
+        raise GelsimError(f"cannot read mesh {path} ({e}); give a valid .stl/.obj file") from None
+    if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
+        raise GelsimError(f"mesh {path} has no triangles; give a mesh with faces")
+    x, y, _ = _grid(profile, scale, (0.0, 0.0))
+    (x0, y0, z0), (x1, y1, z1) = m.bounds
+    cx, cy = (float(c) for c in center_mm)
+    tri = np.array(m.triangles, dtype=np.float64)  # (T, 3, 3), a writable copy
+    tri[:, :, 0] += cx - (x0 + x1) / 2.0
+    tri[:, :, 1] += cy - (y0 + y1) / 2.0
+    zb = _zbuffer_min(tri, x.ravel(), y.ravel())
+    return np.where(np.isfinite(zb), z1 - zb, 0.0).astype(np.float32)
+
+
+def _zbuffer_min(tri: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """Lowest z of the triangles over each pixel centre (inf where none): (len(ys), len(xs)).
+
+    Vectorised rasteriser (no ray-tracing library needed): every triangle is tested
+    against the pixel centres inside its bounding box, in chunks to bound memory.
+    """
+    h, w = ys.size, xs.size
+    dx = xs[1] - xs[0] if w > 1 else 1.0
+    zb = np.full(h * w, np.inf)
+    # Project out triangles seen edge-on from below (zero area in x-y).
+    e1 = tri[:, 1, :2] - tri[:, 0, :2]
+    e2 = tri[:, 2, :2] - tri[:, 0, :2]
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    tri, det = tri[np.abs(det) > 1e-15], det[np.abs(det) > 1e-15]
+    c0 = np.clip(np.ceil((tri[:, :, 0].min(1) - xs[0]) / dx), 0, w).astype(np.int64)
+    c1 = np.clip(np.floor((tri[:, :, 0].max(1) - xs[0]) / dx) + 1, 0, w).astype(np.int64)
+    r0 = np.clip(np.ceil((tri[:, :, 1].min(1) - ys[0]) / dx), 0, h).astype(np.int64)
+    r1 = np.clip(np.floor((tri[:, :, 1].max(1) - ys[0]) / dx) + 1, 0, h).astype(np.int64)
+    nw, nh = np.maximum(c1 - c0, 0), np.maximum(r1 - r0, 0)
+    npix = nw * nh
+    keep = np.flatnonzero(npix > 0)
+    chunk = 2_000_000  # pixel-triangle pairs per batch: about 100 MB of temporaries
+    start = 0
+    while start < keep.size:
+        stop = start
+        total = 0
+        while stop < keep.size and (total == 0 or total + npix[keep[stop]] <= chunk):
+            total += npix[keep[stop]]
+            stop += 1
+        ids = keep[start:stop]
+        start = stop
+        cnt = npix[ids]
+        t = np.repeat(ids, cnt)
+        k = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        col = c0[t] + k % nw[t]
+        row = r0[t] + k // nw[t]
+        px, py = xs[col], ys[row]
+        v0 = tri[t, 0]
+        ax, ay = px - v0[:, 0], py - v0[:, 1]
+        ee1, ee2, dd = tri[t, 1, :2] - v0[:, :2], tri[t, 2, :2] - v0[:, :2], det[t]
+        b1 = (ax * ee2[:, 1] - ay * ee2[:, 0]) / dd
+        b2 = (ee1[:, 0] * ay - ee1[:, 1] * ax) / dd
+        inside = (b1 >= -1e-9) & (b2 >= -1e-9) & (b1 + b2 <= 1 + 1e-9)
+        z = v0[:, 2] + b1 * (tri[t, 1, 2] - v0[:, 2]) + b2 * (tri[t, 2, 2] - v0[:, 2])
+        np.minimum.at(zb, (row * w + col)[inside], z[inside])
+    return zb.reshape(h, w)
+
+
+def load_indenter(name_or_path: str, profile, *, diameter_mm: float | None = None, **kw) -> np.ndarray:
+    """``"sphere"`` or ``"cylinder"`` (need ``diameter_mm``) or a mesh file path.
+
+    Extra keywords go to :func:`sphere`, :func:`cylinder` or :func:`mesh`.
+    """
+    name = str(name_or_path)
+    if name == "sphere":
+        return sphere(_positive("diameter_mm", diameter_mm), profile, **kw)
+    if name == "cylinder":
+        return cylinder(_positive("diameter_mm", diameter_mm), profile, **kw)
+    p = Path(name)
+    if p.suffix.lower() in MESH_SUFFIXES:
+        kw.pop("length_mm", None)
+        kw.pop("angle_deg", None)
+        return mesh(p, profile, **kw)
+    raise GelsimError(f"unknown indenter {name!r}; use sphere, cylinder or a mesh file ({', '.join(MESH_SUFFIXES)})")
