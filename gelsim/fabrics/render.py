@@ -1,0 +1,140 @@
+"""Heightfields of catalog fabrics: a pure function of absolute fabric-plane coordinates.
+
+The family renderers (:mod:`.families`) work on an axis-aligned grid, which makes
+most of their work 1-D (yarn positions, profiles) or separable (lattice noise).
+A rotated patch is rendered on the axis-aligned grid of fabric-plane points
+``(k * mm_per_px, l * mm_per_px)`` (integers k, l) that covers it, only in the
+tiles the patch touches, and resampled bilinearly. Grid values depend only on
+``(k, l)``, so adjacent patches agree.
+"""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from ..errors import GelsimError
+from .catalog import Fabric
+from .families import RENDERERS
+from .noise import fbm, make_key
+
+F32 = np.float32
+# Pixel positions within this many pixels of an integer are treated as on the pixel lattice,
+# so that patches placed at multiples of mm_per_px sample exactly the same points.
+_SNAP_PX = 1e-6
+# Side of the tiles a rotated patch is rendered in: small enough to skip most of the
+# bounding box a 45-degree patch wastes, large enough that per-tile overhead is small.
+_TILE_PX = 256
+# Largest patch, px per side: 8192 covers 80 mm at 0.01 mm/px.
+_MAX_SIDE_PX = 8192
+
+
+def _snap(x: float) -> float:
+    r = round(x)
+    return float(r) if abs(x - r) < _SNAP_PX else x
+
+
+def _surface(fab: Fabric, u: np.ndarray, v: np.ndarray, key: int) -> np.ndarray:
+    """Height in units of the relief (0..1), float32 (len(v), len(u)), for the axis-aligned grid."""
+    s = RENDERERS[fab.family](fab, u, v, key)
+    a, b = fab.hairiness, fab.waviness
+    if a == 0 and b == 0:
+        return np.ascontiguousarray(s, dtype=F32)
+    s = s * F32(1.0 - a - b)
+    if a > 0:
+        # Fibre fuzz: two octaves at the fibre scale, biased upwards (loose fibres stand proud).
+        fz = fbm(u, v, fab.fibre_mm * 2, fab.fibre_mm * 2, make_key(key, "fuzz"), 2)
+        fz *= F32(0.5 * a)
+        fz += F32(0.5 * a)
+        s += fz
+    if b > 0:
+        wv = fbm(u, v, fab.waviness_mm / 2, fab.waviness_mm / 2, make_key(key, "wave"), 2)
+        wv *= F32(0.5 * b)
+        wv += F32(0.5 * b)
+        s += wv
+    return s
+
+
+def heightfield(fabric: Fabric, *, x0_mm: float, y0_mm: float, width_px: int, height_px: int,
+                mm_per_px: float, seed: int = 0, rotation_deg: float = 0.0) -> np.ndarray:
+    """Surface height of ``fabric`` in mm above its base plane, float32 ``(height_px, width_px)``.
+
+    Pixel ``(i, j)`` samples the sensor-plane point ``(x, y) = (x0_mm + j*mm_per_px,
+    y0_mm + i*mm_per_px)``; the fabric is rotated by ``rotation_deg`` (plus its own
+    ``orientation_deg``) about the fabric's origin, i.e. the point seen is the fabric point
+    ``(u, v) = (x cos t + y sin t, -x sin t + y cos t)``. Heights are >= 0 and peak at about
+    ``fabric.relief_mm``. A pure function of the absolute coordinates, the fabric and ``seed``:
+    adjacent patches join seamlessly (exactly when their origins are multiples of ``mm_per_px``).
+    """
+    if not (isinstance(width_px, (int, np.integer)) and isinstance(height_px, (int, np.integer))):
+        raise GelsimError(f"width_px and height_px must be integers, got {width_px!r} x {height_px!r}")
+    if not (0 < width_px <= _MAX_SIDE_PX and 0 < height_px <= _MAX_SIDE_PX):
+        raise GelsimError(f"patch {width_px}x{height_px} px is out of range; use 1-{_MAX_SIDE_PX} px per side")
+    if not (math.isfinite(mm_per_px) and mm_per_px > 0):
+        raise GelsimError(f"mm_per_px {mm_per_px} must be a positive number; e.g. 0.0197 for the ViTac sensor")
+    if not all(math.isfinite(t) for t in (x0_mm, y0_mm, rotation_deg)):
+        raise GelsimError("x0_mm, y0_mm and rotation_deg must be finite numbers")
+    key = make_key(int(seed), fabric.name, fabric.family)
+    j0 = _snap(x0_mm / mm_per_px)
+    i0 = _snap(y0_mm / mm_per_px)
+    theta = (rotation_deg + fabric.orientation_deg) % 360.0
+    if theta == 0.0:
+        u = (j0 + np.arange(width_px)) * mm_per_px
+        v = (i0 + np.arange(height_px)) * mm_per_px
+        s = _surface(fabric, u, v, key)
+    else:
+        s = _rotated(fabric, j0, i0, width_px, height_px, mm_per_px, theta, key)
+    s *= F32(fabric.relief_mm)
+    np.maximum(s, 0.0, out=s)
+    return s
+
+
+def _rotated(fab: Fabric, j0: float, i0: float, w: int, h: int, mpp: float, theta: float, key: int) -> np.ndarray:
+    t = math.radians(theta)
+    c, s = math.cos(t), math.sin(t)
+    # Fabric-grid coordinates (in pixels) of the output pixels: U = c*J + s*I, V = -s*J + c*I.
+    jj = j0 + np.arange(w, dtype=np.float64)
+    ii = i0 + np.arange(h, dtype=np.float64)
+    corners_j = np.array([jj[0], jj[-1], jj[0], jj[-1]])
+    corners_i = np.array([ii[0], ii[0], ii[-1], ii[-1]])
+    cu = c * corners_j + s * corners_i
+    cv = -s * corners_j + c * corners_i
+    k0 = int(math.floor(cu.min())) - 2
+    l0 = int(math.floor(cv.min())) - 2
+    nk = int(math.ceil(cu.max())) + 3 - k0
+    nl = int(math.ceil(cv.max())) + 3 - l0
+    if max(nk, nl) >= 32767:   # cv2.remap's limit on the source size
+        raise GelsimError(f"rotated patch needs a {nk}x{nl} px source grid; use a coarser mm_per_px "
+                          "or a smaller patch (at most about 23000 px diagonal)")
+    src = np.zeros((nl, nk), F32)
+    # Render only the tiles of the source grid that the rotated patch touches.
+    for tl in range(0, nl, _TILE_PX):
+        for tk in range(0, nk, _TILE_PX):
+            ke, le = min(tk + _TILE_PX, nk), min(tl + _TILE_PX, nl)
+            if not _tile_needed(k0 + tk, k0 + ke, l0 + tl, l0 + le, c, s, jj[0], jj[-1], ii[0], ii[-1]):
+                continue
+            u = (k0 + np.arange(tk, ke)) * mpp
+            v = (l0 + np.arange(tl, le)) * mpp
+            src[tl:le, tk:ke] = _surface(fab, u, v, key)
+    map_u = (c * jj[None, :] + s * ii[:, None] - k0).astype(F32)
+    map_v = (-s * jj[None, :] + c * ii[:, None] - l0).astype(F32)
+    return cv2.remap(src, map_u, map_v, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def _tile_needed(ka, kb, la, lb, c, s, ja, jb, ia, ib) -> bool:
+    """Whether the fabric-grid tile [ka, kb) x [la, lb) overlaps the rotated output rectangle
+    (separating-axis test on two rectangles, with a 2-px margin for the bilinear footprint)."""
+    m = 2.0
+    tile_k = np.array([ka - m, kb + m, ka - m, kb + m])
+    tile_l = np.array([la - m, la - m, lb + m, lb + m])
+    # Tile corners in output-pixel coordinates (inverse rotation).
+    tj = c * tile_k - s * tile_l
+    ti = s * tile_k + c * tile_l
+    if tj.max() < ja or tj.min() > jb or ti.max() < ia or ti.min() > ib:
+        return False
+    oj = np.array([ja, jb, ja, jb])
+    oi = np.array([ia, ia, ib, ib])
+    ok = c * oj + s * oi
+    ol = -s * oj + c * oi
+    return not (ok.max() < ka - m or ok.min() > kb + m or ol.max() < la - m or ol.min() > lb + m)
