@@ -162,7 +162,6 @@ class PyrenderShader:
         self.flat_rgb = flat_shading_rgb(maps)
         self.gain = profile.shading.gain_dn
         self.flat_linear = self._render_linear(np.zeros((h, w), np.float32))
-        self.margin_px = 2 * self.step + 1   # the mesh spreads a pixel's depth over neighbouring cells
 
     def _fit_shadow_camera(self, spot, fov: float, znear: float, zfar: float) -> None:
         """Give ``spot`` a shadow-map camera that just covers the gel.
@@ -201,12 +200,14 @@ class PyrenderShader:
         return lin
 
     def delta(self, depth_mm: np.ndarray, margin_px: int = 0):
-        """``(roi, delta)``: the box around the imprint and float32 ``(h, w, 3)`` DN change there; None if flat."""
-        roi = imprint_roi(depth_mm, self.margin_px + margin_px)
-        if roi is None:
+        """``(roi, delta)``: whole-frame slices and float32 ``(H, W, 3)`` DN change; None if flat.
+        ``margin_px`` is accepted for the backend interface; the whole frame is always shaded."""
+        if imprint_roi(depth_mm, 0) is None:
             return None
-        lin = self._render_linear(depth_mm)[roi]
-        flat = self.flat_linear[roi]
+        # whole frame: shadows fall outside the imprint (0.8 mm relief at 25 degrees: 1.7 mm away)
+        roi = (slice(None), slice(None))
+        lin = self._render_linear(depth_mm)
+        flat = self.flat_linear
         # dark flat pixels (shadowed rim) carry no usable ratio: a 1/255 floor keeps it finite
         ratio = lin / np.maximum(flat, 1.0 / 255.0) - 1.0
         out = (self.gain * self.flat_rgb[roi] * ratio * self.vignetting[roi][..., None]).astype(np.float32)
