@@ -42,12 +42,16 @@ PLATFORMS = ("egl", "osmesa")
 
 
 def _version_tuple(text: str) -> tuple[int, ...]:
+    """Leading numeric release parts: "3.1.7rc1" -> (3, 1, 7)."""
+    import re
     parts = []
     for p in text.split("."):
-        digits = "".join(ch for ch in p if ch.isdigit())
-        if not digits:
+        m = re.match(r"\d+", p)
+        if not m:
             break
-        parts.append(int(digits))
+        parts.append(int(m.group()))
+        if m.end() < len(p):      # a pre/post-release suffix ends the release number
+            break
     return tuple(parts)
 
 
