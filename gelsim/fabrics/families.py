@@ -127,7 +127,9 @@ def woven(fab: Fabric, u: np.ndarray, v: np.ndarray, key: int) -> np.ndarray:
         top *= prof > 0
         tops.append(top)
     s = np.maximum(tops[0], tops[1])
-    s *= F32(1.0 / (2.0 * fab.crimp + (1.6 if fab.family == "ripstop" else 1.0)))
+    # Normalise by the highest possible top: crimp above the centreline plus the thickest yarn
+    # (a reinforcement yarn, thickened further at a slub).
+    s *= F32(1.0 / (2.0 * fab.crimp + (1.6 if fab.family == "ripstop" else 1.0) * (1.0 + fab.slub)))
     return s
 
 
@@ -217,9 +219,10 @@ def velvet(fab: Fabric, u: np.ndarray, v: np.ndarray, key: int) -> np.ndarray:
     return n
 
 
-def _bump_lattice(u, v, pu, pv, radius_mm, jitter, key, shift):
+def _bump_lattice(u, v, pu, pv, radius_mm, jitter, key, shift, size_spread=0.0):
     """Round bumps, one per cell of a (pu, pv) lattice shifted by ``shift`` cells, at jittered
-    positions inside the cell, random height 0.6-1; float32 (len(v), len(u))."""
+    positions inside the cell, random height 0.6-1 and radius ``radius_mm`` x (1 - size_spread * U);
+    float32 (len(v), len(u))."""
     gu = u / pu + shift
     gv = v / pv + shift
     cu = np.floor(gu).astype(np.int64)
@@ -229,34 +232,38 @@ def _bump_lattice(u, v, pu, pv, radius_mm, jitter, key, shift):
     cu0, cv0 = int(cu.min()), int(cv.min())
     ucells = np.arange(cu0, int(cu.max()) + 1)[None, :]
     vcells = np.arange(cv0, int(cv.max()) + 1)[:, None]
+    rad = radius_mm * (1.0 - size_spread * hash_unit(ucells, vcells, make_key(key, "r")))
     # Keep each bump inside its cell, so that no bump is cut by a neighbouring cell.
-    room_u = max(0.0, pu / 2 - radius_mm) * min(1.0, jitter / 0.45 + 0.3)
-    room_v = max(0.0, pv / 2 - radius_mm) * min(1.0, jitter / 0.45 + 0.3)
-    ou = ((hash_unit(ucells, vcells, make_key(key, "ou")) * 2 - 1) * room_u).astype(F32)
-    ov = ((hash_unit(ucells, vcells, make_key(key, "ov")) * 2 - 1) * room_v).astype(F32)
+    scale = min(1.0, jitter / 0.45)
+    ou = ((hash_unit(ucells, vcells, make_key(key, "ou")) * 2 - 1) * np.maximum(0.0, pu / 2 - rad) * scale)
+    ov = ((hash_unit(ucells, vcells, make_key(key, "ov")) * 2 - 1) * np.maximum(0.0, pv / 2 - rad) * scale)
     hh = (0.6 + 0.4 * hash_unit(ucells, vcells, make_key(key, "h"))).astype(F32)
+    inv_r2 = (1.0 / (rad * rad)).astype(F32)
     ri = cv - cv0
     ci = cu - cu0
-    du = np.take(ou[ri], ci, axis=1)
+    du = np.take(ou.astype(F32)[ri], ci, axis=1)
     np.subtract(a.astype(F32)[None, :], du, out=du)
-    dv = np.take(ov[ri], ci, axis=1)
+    dv = np.take(ov.astype(F32)[ri], ci, axis=1)
     np.subtract(b.astype(F32)[:, None], dv, out=dv)
     du *= du
     dv *= dv
     du += dv
-    du *= F32(1.0 / (radius_mm * radius_mm))
+    du *= np.take(inv_r2[ri], ci, axis=1)
     prof = _profile(du)
     prof *= np.take(hh[ri], ci, axis=1)
     return prof
 
 
 def terry(fab: Fabric, u: np.ndarray, v: np.ndarray, key: int) -> np.ndarray:
-    # Loops of two interpenetrating lattices (loops stand in staggered rows).
+    # Loops stand densely in no visible order: three jittered lattices of slightly different
+    # pitch (ratios 1, 1.17, 0.89, chosen incommensurate) overlap into a quasi-random pile.
     r = fab.warp_width_mm / 2
-    s1 = _bump_lattice(u, v, fab.warp_pitch_mm, fab.weft_pitch_mm, r, fab.spacing_jitter, make_key(key, 1), 0.0)
-    s2 = _bump_lattice(u, v, fab.warp_pitch_mm, fab.weft_pitch_mm, r, fab.spacing_jitter, make_key(key, 2), 0.5)
-    np.maximum(s1, s2, out=s1)
-    return s1
+    pu, pv, jit = fab.warp_pitch_mm, fab.weft_pitch_mm, fab.spacing_jitter
+    s = _bump_lattice(u, v, pu, pv, r, jit, make_key(key, 1), 0.0, 0.3)
+    for k, (fu, fv, sh) in enumerate(((1.17, 0.89, 0.5), (0.89, 1.17, 0.25)), start=2):
+        s2 = _bump_lattice(u, v, pu * fu, pv * fv, r, jit, make_key(key, k), sh, 0.3)
+        np.maximum(s, s2, out=s)
+    return s
 
 
 # --------------------------------------------------------------------------- non-woven, leather

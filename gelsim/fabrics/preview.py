@@ -90,7 +90,7 @@ def preview(fabric: Fabric, *, size_mm: float = 10.0, mm_per_px: float = 0.01, s
     return np.vstack([title, img])
 
 
-def contact_sheet(catalog: Catalog, *, tile_mm: float = 6.0, mm_per_px: float = 0.03, columns: int = 10,
+def contact_sheet(catalog: Catalog, *, tile_mm: float = 5.0, mm_per_px: float = 0.025, columns: int = 10,
                   seed: int = 0) -> np.ndarray:
     """uint8 BGR sheet of every fabric in ``catalog``, one labelled hillshade tile each, with a scale bar."""
     if not (math.isfinite(tile_mm) and tile_mm > 0) or not (math.isfinite(mm_per_px) and mm_per_px > 0):
