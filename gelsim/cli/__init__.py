@@ -19,6 +19,8 @@ from ..errors import GelsimError
 COMMAND_MODULES = (
     "fabrics_cmd",
     "generate_cmd",
+    "press_cmd",
+    "render_cmd",
 )
 
 
