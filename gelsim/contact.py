@@ -153,9 +153,11 @@ class Surface:
         xmin, ymin, xmax, ymax = motion.travel_bounds_mm()
         fw, fh = profile.field_mm
         r = 0.5 * math.hypot(fw, fh) + 2 * mm_per_px  # 2 cells: the pad edge must not meet the patch edge
-        x0, y0 = xmin - r, ymin - r
-        w = int(math.ceil((xmax - xmin + 2 * r) / mm_per_px)) + 1
-        h = int(math.ceil((ymax - ymin + 2 * r) / mm_per_px)) + 1
+        # On the fabric's pixel grid (heightfield snaps its origin to multiples of mm_per_px).
+        x0 = math.floor((xmin - r) / mm_per_px) * mm_per_px
+        y0 = math.floor((ymin - r) / mm_per_px) * mm_per_px
+        w = int(math.ceil((xmax + r - x0) / mm_per_px)) + 1
+        h = int(math.ceil((ymax + r - y0) / mm_per_px)) + 1
         hf = heightfield(fabric, x0_mm=x0, y0_mm=y0, width_px=w, height_px=h, mm_per_px=mm_per_px,
                          seed=seed, rotation_deg=motion.fabric_rotation_deg)
         hf = np.asarray(hf, dtype=np.float32)
