@@ -10,18 +10,19 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("fabrics", help="the fabric catalog: list, preview, contact sheet",
                               description="The procedural fabric catalog (assets/fabrics/).",
                               formatter_class=HelpFormatter)
-    p.add_argument("--catalog", default=None, metavar="PATH",
-                   help="catalog folder or .toml file (default: the shipped assets/fabrics/)")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--catalog", default=None, metavar="PATH",
+                        help="catalog folder or .toml file (default: None = the shipped assets/fabrics/)")
     sub = p.add_subparsers(dest="fabrics_command", metavar="SUBCOMMAND")
     p.set_defaults(handler=lambda args: (p.print_help(), 2)[1])
 
-    q = sub.add_parser("list", help="table of all fabrics", formatter_class=HelpFormatter,
+    q = sub.add_parser("list", help="table of all fabrics", formatter_class=HelpFormatter, parents=[common],
                        description="All fabrics with family, material and physical parameters.")
     q.add_argument("--json", action="store_true",
                    help="print a JSON document {version, fabrics: [...]} instead of the table")
     q.set_defaults(handler=_list)
 
-    q = sub.add_parser("show", help="hillshade preview of one fabric", formatter_class=HelpFormatter,
+    q = sub.add_parser("show", help="hillshade preview of one fabric", formatter_class=HelpFormatter, parents=[common],
                        description="Write a shaded-relief PNG of one fabric, with its name and a mm scale bar.")
     q.add_argument("id", type=int, help="fabric id (see `gelsim fabrics list`)")
     q.add_argument("--out", required=True, metavar="FILE.png", help="output PNG file (required)")
@@ -31,7 +32,7 @@ def register(subparsers) -> None:
     q.add_argument("--rotation-deg", type=float, default=0.0, help="rotation of the fabric, degrees")
     q.set_defaults(handler=_show)
 
-    q = sub.add_parser("sheet", help="contact sheet of every fabric", formatter_class=HelpFormatter,
+    q = sub.add_parser("sheet", help="contact sheet of every fabric", formatter_class=HelpFormatter, parents=[common],
                        description="Write one PNG with a labelled hillshade tile per fabric.")
     q.add_argument("--out", required=True, metavar="FILE.png", help="output PNG file (required)")
     q.add_argument("--tile-mm", type=float, default=5.0, help="side of each fabric's tile, mm")
@@ -68,7 +69,8 @@ def _list(args) -> int:
 
 
 def _show(args) -> int:
-    from ..fabrics.preview import preview, write_png
+    from ..fabrics.preview import check_out_path, preview, write_png
+    check_out_path(args.out)
     fab = _catalog(args)[args.id]
     img = preview(fab, size_mm=args.size_mm, mm_per_px=args.mm_per_px, seed=args.seed,
                   rotation_deg=args.rotation_deg)
@@ -78,7 +80,8 @@ def _show(args) -> int:
 
 
 def _sheet(args) -> int:
-    from ..fabrics.preview import contact_sheet, write_png
+    from ..fabrics.preview import check_out_path, contact_sheet, write_png
+    check_out_path(args.out)
     cat = _catalog(args)
     img = contact_sheet(cat, tile_mm=args.tile_mm, mm_per_px=args.mm_per_px, columns=args.columns,
                         seed=args.seed)

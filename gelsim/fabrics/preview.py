@@ -119,17 +119,26 @@ def contact_sheet(catalog: Catalog, *, tile_mm: float = 5.0, mm_per_px: float = 
     return sheet
 
 
-def write_png(path: str | Path, img: np.ndarray) -> Path:
-    """Write ``img`` as PNG via a temporary file and a rename; unwritable paths are a GelsimError."""
+def check_out_path(path: str | Path) -> Path:
+    """Fail early (before rendering) on an output path that cannot be a writable PNG."""
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise GelsimError(f"{path}: output must be a .png file; give a name ending in .png")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise GelsimError(f"{path}: folder {parent} does not exist; create it or choose another --out")
+    if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise GelsimError(f"{path}: not writable; choose a writable --out")
+    return path
+
+
+def write_png(path: str | Path, img: np.ndarray) -> Path:
+    """Write ``img`` as PNG via a temporary file and a rename; unwritable paths are a GelsimError."""
+    path = check_out_path(path)
     ok, buf = cv2.imencode(".png", img)
     if not ok:
         raise GelsimError(f"{path}: could not encode the PNG image")
     parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise GelsimError(f"{path}: folder {parent} does not exist; create it or choose another --out")
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent)
     except OSError as e:
