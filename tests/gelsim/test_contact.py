@@ -191,7 +191,11 @@ def test_sampled_motions_with_tilt_and_tremor(action):
     assert cf.first_contact_frame == P and not cf.in_contact[:P].any()
     held = cf.in_contact & (contact_u(cf, m) > m.rise_fraction + 0.05)
     if action != "press":
-        assert np.all(np.abs(cf.normal_force_n[held] - m.peak_force_n) < 0.15 * m.peak_force_n)
+        # Tremor modulates the force by up to 5 % and fibres bump a sliding pad: median within 5 %,
+        # every frame within 20 % (the crisp 5 % hold is tested without tremor above).
+        f = cf.normal_force_n[held]
+        assert abs(np.median(f) - m.peak_force_n) < 0.05 * m.peak_force_n
+        assert np.all(np.abs(f - m.peak_force_n) < 0.2 * m.peak_force_n)
     assert np.array_equal(cf.tilt_deg[0], np.array(m.tilt_deg))
     # Undeformed gel height: near the fabric top while pressing (soft contact stand-off < 1 mm).
     assert np.all(np.abs(cf.position_mm[held, 2] - 0.06) < 1.0)
