@@ -190,7 +190,9 @@ class ContactFrames:
     contact_time_s: float = float("nan")  # camera time of the first touch
 
     def to_dict(self) -> dict[str, np.ndarray]:
-        return {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)}
+        """The per-frame arrays (leading dimension T); the two scalars stay attributes."""
+        return {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)
+                if f.name not in ("first_contact_frame", "contact_time_s")}
 
 
 def gel_stiffness(profile: SensorProfile) -> tuple[float, float, float]:

@@ -75,6 +75,7 @@ def test_shapes_and_dict(press):
                         ("slipping", (T,)), ("shear_mm", (T, 2)), ("twist_deg", (T,))]:
         assert d[name].shape == shape, name
         assert np.all(np.isfinite(d[name].astype(float))), name
+    assert len(d) == 10 and all(v.shape[0] == T for v in d.values())
     assert np.allclose(np.diff(cf.time_s), 1 / PROFILE.image.fps_hz)
     assert np.all(cf.normal_force_n >= 0)
 
