@@ -486,6 +486,13 @@ def _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window):
     sl = _pen_window(work, v, delta, margin, window)
     if sl is None or delta <= 0:
         return np.zeros(work.shape, np.float32), np.zeros(work.shape, bool), 0.0, 0.0, False
+    # Align the window to the coarsest pyramid level so that its cells are the full
+    # frame's cells: the touched-region result then equals the full-frame one.
+    step = 2 ** max(0, int(math.floor(math.log2(max(sigma_px / _LEVEL_SIGMA, 1.0)))))
+    r0, c0 = sl[0].start // step * step, sl[1].start // step * step
+    r1 = min(work.shape[0], -(-sl[0].stop // step) * step)
+    c1 = min(work.shape[1], -(-sl[1].stop // step) * step)
+    sl = (slice(r0, r1), slice(c0, c1))
     pen = np.float32(delta) - v[sl]
     cv2.max(pen, 0.0, dst=pen)
     vol = float(cv2.sumElems(pen)[0]) * dx * dx

@@ -1,0 +1,235 @@
+"""Gel imprint: Hertz check, monotonicity, extremes, windowing, resolution, dtypes, properties."""
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from gelsim import indenters
+from gelsim.errors import GelsimError
+from gelsim.fidelity import get_fidelity
+from gelsim.gel import Imprint, hertz, measure_contact_radius_mm, press
+from gelsim.sensor import load_profile
+
+ELASTIC = dataclasses.replace(get_fidelity("reference"), imprint_model="elastic", imprint_scale=1.0)
+PYRAMID = dataclasses.replace(get_fidelity("balanced"), imprint_model="pyramid", imprint_scale=1.0)
+MODELS = [ELASTIC, PYRAMID]
+
+
+@pytest.fixture(scope="module")
+def prof():
+    return load_profile("vitac").with_resolution(480)
+
+
+def with_gel(profile, **kw):
+    return dataclasses.replace(profile, gel=dataclasses.replace(profile.gel, **kw))
+
+
+def test_hertz_formula():
+    gel = load_profile("vitac").gel
+    a, d = hertz(4.0, 0.1, gel)
+    estar = gel.young_modulus_mpa / (1 - gel.poisson_ratio ** 2)
+    assert a == pytest.approx((3 * 0.1 * 2.0 / (4 * estar)) ** (1 / 3))
+    assert d == pytest.approx(a * a / 2.0)
+    with pytest.raises(GelsimError):
+        hertz(0.0, 0.1, gel)
+
+
+# Hertz is a half-space result: checked on a 20 mm gel, where a/h < 0.06 for these forces.
+@pytest.mark.parametrize("force", [0.002, 0.006, 0.02, 0.06, 0.2])
+def test_elastic_sphere_follows_hertz_over_two_decades(prof, force):
+    thick = with_gel(prof, thickness_mm=20.0)
+    im = press(indenters.sphere(4.0, thick), thick, ELASTIC, force_n=force)
+    a_h, d_h = hertz(4.0, force, thick.gel)
+    assert measure_contact_radius_mm(im, thick.image.mm_per_px) == pytest.approx(a_h, rel=0.10)
+    assert im.indentation_mm == pytest.approx(d_h, rel=0.10)
+    assert im.normal_force_n == pytest.approx(force, rel=1e-6)
+    assert not im.bottomed_out
+
+
+def test_thin_bonded_layer_is_stiffer_than_half_space(prof):
+    im_thin = press(indenters.sphere(4.0, prof), prof, ELASTIC, force_n=0.1)
+    thick = with_gel(prof, thickness_mm=20.0)
+    im_thick = press(indenters.sphere(4.0, thick), thick, ELASTIC, force_n=0.1)
+    assert im_thin.indentation_mm < 0.9 * im_thick.indentation_mm
+
+
+@pytest.mark.parametrize("force", [0.003, 0.03, 0.3])
+def test_pyramid_law_tracks_elastic_model(prof, force):
+    p = indenters.sphere(4.0, prof)
+    el = press(p, prof, ELASTIC, force_n=force)
+    py = press(p, prof, PYRAMID, force_n=force)
+    assert py.indentation_mm == pytest.approx(el.indentation_mm, rel=0.10)
+    assert py.contact_area_mm2 == pytest.approx(el.contact_area_mm2, rel=0.30)
+
+
+@pytest.mark.parametrize("fid", MODELS, ids=lambda f: f.imprint_model)
+def test_force_monotonic_in_depth(prof, fid):
+    p = indenters.sphere(6.0, prof, center_mm=(0.7, -0.3))
+    forces = [press(p, prof, fid, depth_mm=d).normal_force_n for d in (0.01, 0.03, 0.08, 0.2, 0.4)]
+    assert all(b > a > 0 for a, b in zip(forces, forces[1:]))
+
+
+@pytest.mark.parametrize("fid", MODELS, ids=lambda f: f.imprint_model)
+def test_force_and_depth_control_agree(prof, fid):
+    p = indenters.sphere(4.0, prof)
+    by_force = press(p, prof, fid, force_n=0.05)
+    by_depth = press(p, prof, fid, depth_mm=by_force.indentation_mm)
+    assert by_depth.normal_force_n == pytest.approx(0.05, rel=0.03)
+
+
+@pytest.mark.parametrize("fid", MODELS, ids=lambda f: f.imprint_model)
+def test_no_contact_gives_zeros(prof, fid):
+    p = indenters.sphere(4.0, prof)
+    for im in (press(p, prof, fid, force_n=0.0), press(p, prof, fid, depth_mm=0.0)):
+        assert im.depth_mm.shape == prof.shape and im.depth_mm.dtype == np.float32
+        assert not im.depth_mm.any() and not im.contact_mask.any()
+        assert im.normal_force_n == 0.0 and im.contact_area_mm2 == 0.0 and im.indentation_mm == 0.0
+
+
+@pytest.mark.parametrize("fid", MODELS, ids=lambda f: f.imprint_model)
+def test_grazing_contact_is_small_and_finite(prof, fid):
+    im = press(indenters.sphere(4.0, prof), prof, fid, force_n=1e-6)
+    assert np.isfinite(im.depth_mm).all()
+    assert 0 < im.indentation_mm < 1e-3
+    assert im.contact_area_mm2 < 0.05
+
+
+@pytest.mark.parametrize("fid", MODELS, ids=lambda f: f.imprint_model)
+def test_bottoming_out_is_clipped_and_flagged(prof, fid):
+    im = press(indenters.sphere(8.0, prof), prof, fid, force_n=50.0)
+    assert im.bottomed_out
+    assert im.indentation_mm == pytest.approx(prof.gel.max_indentation_mm)
+    assert im.depth_mm.max() <= prof.gel.max_indentation_mm * (1 + 1e-4)
+    assert im.normal_force_n < 50.0
+    ok = press(indenters.sphere(8.0, prof), prof, fid, force_n=0.05)
+    assert not ok.bottomed_out
+
+
+@pytest.mark.parametrize("fid", MODELS, ids=lambda f: f.imprint_model)
+def test_touched_region_matches_full_frame(prof, fid):
+    # Tolerance: 1% of the indentation anywhere in the frame (the elastic layer's field
+    # 3 thicknesses out and the pyramid's blur 3 sigma out are below that).
+    p = indenters.sphere(4.0, prof, center_mm=(1.3, 0.8))
+    a = press(p, prof, fid, force_n=0.05)
+    b = press(p, prof, fid, force_n=0.05, window="full")
+    assert np.abs(a.depth_mm - b.depth_mm).max() <= 0.01 * b.indentation_mm
+    assert a.indentation_mm == pytest.approx(b.indentation_mm, rel=1e-3)
+    assert (a.contact_mask != b.contact_mask).sum() <= 0.02 * b.contact_mask.sum()
+    # Zero beyond the margin: 3 thicknesses for the elastic layer, 3 coarsest blurs
+    # (0.27 h each) for the pyramid, plus the contact radius and a cell.
+    h, w = prof.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    mmpp = prof.image.mm_per_px
+    r = np.hypot((xx - (w - 1) / 2) * mmpp - 1.3, (yy - (h - 1) / 2) * mmpp - 0.8)
+    reach = (3.0 if fid.imprint_model == "elastic" else 1.0) * prof.gel.thickness_mm + 1.0
+    assert not a.depth_mm[r > reach * math.sqrt(2)].any()
+    assert a.depth_mm[r < 0.3].min() > 0
+
+
+@pytest.mark.parametrize("fid", MODELS, ids=lambda f: f.imprint_model)
+def test_imprint_scale_half_vs_full(prof, fid):
+    # Tolerances: indentation 3%, contact area 10%, depth map 3% of the indentation (mean abs).
+    p = indenters.sphere(5.0, prof)
+    full = press(p, prof, fid, force_n=0.05)
+    half = press(p, prof, dataclasses.replace(fid, imprint_scale=0.5), force_n=0.05)
+    assert half.depth_mm.shape == prof.shape
+    assert half.indentation_mm == pytest.approx(full.indentation_mm, rel=0.03)
+    assert half.contact_area_mm2 == pytest.approx(full.contact_area_mm2, rel=0.10)
+    assert np.abs(half.depth_mm - full.depth_mm).mean() <= 0.03 * full.indentation_mm
+
+
+@pytest.mark.parametrize("fid", MODELS, ids=lambda f: f.imprint_model)
+def test_float32_and_float64_inputs_agree(prof, fid):
+    p64 = indenters.sphere(4.0, prof).astype(np.float64)
+    a = press(p64, prof, fid, force_n=0.05)
+    b = press(p64.astype(np.float32), prof, fid, force_n=0.05)
+    assert a.depth_mm.dtype == b.depth_mm.dtype == np.float32
+    assert np.abs(a.depth_mm - b.depth_mm).max() < 1e-4 * 1.0 + 1e-3 * a.indentation_mm
+
+
+@pytest.mark.parametrize("fid", MODELS, ids=lambda f: f.imprint_model)
+def test_deterministic(prof, fid):
+    p = indenters.sphere(4.0, prof)
+    a = press(p, prof, fid, force_n=0.05)
+    b = press(p, prof, fid, force_n=0.05)
+    assert np.array_equal(a.depth_mm, b.depth_mm) and np.array_equal(a.contact_mask, b.contact_mask)
+
+
+@pytest.mark.parametrize("fid", MODELS, ids=lambda f: f.imprint_model)
+def test_soft_fabric_support_flattens_the_imprint(prof, fid):
+    rng = np.random.default_rng(1)
+    h, w = prof.shape
+    yy, xx = np.mgrid[0:h, 0:w] * prof.image.mm_per_px
+    texture = 0.05 * (np.sin(2 * np.pi * xx / 0.6) * np.sin(2 * np.pi * yy / 0.5) + 1)
+    dome = 0.3 * (1 - ((xx - xx.mean()) ** 2 + (yy - yy.mean()) ** 2) / 60.0)
+    p = (texture + dome + 0.002 * rng.standard_normal((h, w))).astype(np.float32)
+    rigid = press(p, prof, fid, force_n=0.5)
+    soft = press(p, prof, fid, force_n=0.5, support_stiffness_kpa_per_mm=20.0)
+    assert soft.depth_mm.max() < rigid.depth_mm.max()
+    assert soft.contact_area_mm2 > rigid.contact_area_mm2
+    for im in (rigid, soft):
+        assert np.isfinite(im.depth_mm).all() and im.depth_mm.min() >= 0
+
+
+@pytest.mark.parametrize("fid", MODELS, ids=lambda f: f.imprint_model)
+def test_steep_and_subpixel_textures(fid):
+    prof = load_profile("vitac").with_resolution(160)  # a half-frame flat punch: keep it small
+    rng = np.random.default_rng(2)
+    h, w = prof.shape
+    step = np.zeros(prof.shape, np.float32)
+    step[:, w // 2:] = 0.5  # a cliff of 4 px in one pixel
+    noise = (0.02 * rng.random(prof.shape)).astype(np.float32)  # relief finer than a pixel
+    for p in (step, noise, step + noise):
+        im = press(p, prof, fid, force_n=0.2)
+        assert np.isfinite(im.depth_mm).all() and im.depth_mm.min() >= 0
+        assert im.depth_mm.max() > 0 and im.contact_area_mm2 > 0
+
+
+@pytest.mark.parametrize("fid", MODELS, ids=lambda f: f.imprint_model)
+def test_very_stiff_and_very_soft_gels(prof, fid):
+    p = indenters.sphere(4.0, prof)
+    stiff = press(p, with_gel(prof, young_modulus_mpa=100.0), fid, force_n=0.01)
+    soft = press(p, with_gel(prof, young_modulus_mpa=0.001), fid, force_n=0.01)
+    assert 0 < stiff.indentation_mm < 2e-3  # Hertz: 1.4 um
+    assert soft.indentation_mm > 100 * stiff.indentation_mm
+    for im in (stiff, soft):
+        assert np.isfinite(im.depth_mm).all()
+
+
+def test_bad_input(prof):
+    p = indenters.sphere(4.0, prof)
+    with pytest.raises(GelsimError):
+        press(p, prof, PYRAMID, force_n=1.0, depth_mm=0.1)
+    with pytest.raises(GelsimError):
+        press(p, prof, PYRAMID)
+    with pytest.raises(GelsimError):
+        press(p, prof, PYRAMID, force_n=-1.0)
+    bad = p.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(GelsimError):
+        press(bad, prof, PYRAMID, force_n=0.1)
+    with pytest.raises(GelsimError):
+        press(p[:10], prof, PYRAMID, force_n=0.1)
+
+
+SMALL = load_profile("vitac").with_resolution(96)
+
+
+@settings(max_examples=30, deadline=None)
+@given(d=st.floats(0.5, 20.0), f=st.floats(1e-5, 5.0), e=st.floats(0.01, 10.0), nu=st.floats(0.0, 0.5),
+       th=st.floats(0.5, 20.0), cx=st.floats(-8.0, 8.0), elastic=st.booleans(),
+       ks=st.one_of(st.none(), st.floats(1.0, 1000.0)))
+def test_property_finite_nonnegative(d, f, e, nu, th, cx, elastic, ks):
+    prof = with_gel(SMALL, young_modulus_mpa=e, poisson_ratio=nu, thickness_mm=th)
+    fid = ELASTIC if elastic else PYRAMID
+    im = press(indenters.sphere(d, prof, center_mm=(cx, 0.0)), prof, fid, force_n=f,
+               support_stiffness_kpa_per_mm=ks)
+    assert isinstance(im, Imprint)
+    assert im.depth_mm.dtype == np.float32 and im.depth_mm.shape == prof.shape
+    assert np.isfinite(im.depth_mm).all() and im.depth_mm.min() >= 0
+    assert 0 < im.indentation_mm <= prof.gel.max_indentation_mm + 1e-12
+    assert im.depth_mm.max() <= prof.gel.max_indentation_mm * 1.001
+    assert math.isfinite(im.normal_force_n) and 0 < im.normal_force_n <= f * (1 + 1e-6)
+    assert im.contact_mask.any() == (im.contact_area_mm2 > 0)
