@@ -61,7 +61,8 @@ def marker_grid(profile, *, seed: int = 0) -> np.ndarray:
 
     Square layout: rows and columns ``pitch_mm`` apart; hex: rows ``pitch * sqrt(3) / 2``
     apart, every other row shifted by half a pitch. The grid is centred on the image and
-    keeps markers that lie wholly inside it; jitter is Gaussian with sigma ``jitter_mm``.
+    keeps markers that lie wholly inside it (before jitter), in row-major order; jitter is
+    Gaussian with sigma ``jitter_mm``.
     """
     return _marker_grid(profile.markers, profile.image, int(seed)).copy()
 
@@ -86,14 +87,16 @@ def _marker_grid(spec, image, seed: int) -> np.ndarray:
         x = x + np.where(ii % 2 == 1, pitch / 2.0, 0.0)
     y = cy + ii * dy
     pts = np.column_stack([x.ravel(), y.ravel()])
-    if spec.jitter_mm > 0:
-        rng = np.random.default_rng(seed)
-        pts = pts + rng.normal(0.0, spec.jitter_mm / mmpp, pts.shape)
+    # Which markers exist and their order depend on the printed grid, not on the jitter,
+    # so every seed gives the same N in the same row-major order.
     inside = ((pts[:, 0] - half >= -0.5) & (pts[:, 0] + half <= w - 0.5)
               & (pts[:, 1] - half >= -0.5) & (pts[:, 1] + half <= h - 0.5))
     pts = pts[inside]
-    order = np.lexsort((pts[:, 0], pts[:, 1]))  # row-major, top to bottom
-    return pts[order].astype(np.float32)
+    pts = pts[np.lexsort((pts[:, 0], pts[:, 1]))]
+    if spec.jitter_mm > 0:
+        rng = np.random.default_rng(seed)
+        pts = pts + rng.normal(0.0, spec.jitter_mm / mmpp, pts.shape)
+    return pts.astype(np.float32)
 
 
 def _corners(centres: np.ndarray, profile) -> np.ndarray:
