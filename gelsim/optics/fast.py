@@ -41,6 +41,20 @@ class FastShader:
         self.color_matrix = (sh.gain_dn * np.stack([m.color for m in maps], axis=1)).astype(np.float32)
         # 1 px for the 3x3 gradient stencil, 1 more so the ROI border is flat for sure
         self.margin_px = 2
+        # per-light gains folded into maps once (irradiance x reflectance x vignetting), so a
+        # frame costs only the terms that depend on the normal
+        vig = self.vignetting
+        self._kd = [np.ascontiguousarray(sh.diffuse * m.att * vig, dtype=np.float32) for m in maps]
+        self._ks = [np.ascontiguousarray(sh.specular * m.att * vig, dtype=np.float32) for m in maps]
+        self._flat = [np.ascontiguousarray(m.flat * vig, dtype=np.float32) for m in maps]
+        self._bufs: dict[str, np.ndarray] = {}
+
+    def _buffer(self, name: str, shape: tuple[int, int]) -> np.ndarray:
+        """A reusable float32 work array (reallocated when the ROI shape changes)."""
+        buf = self._bufs.get(name)
+        if buf is None or buf.shape != shape:
+            buf = self._bufs[name] = np.empty(shape, np.float32)
+        return buf
 
     def delta(self, depth_mm: np.ndarray, margin_px: int = 0):
         """``(roi, delta)``: slices of the shaded box and float32 ``(h, w, 3)`` DN change there
@@ -54,34 +68,43 @@ class FastShader:
         # Sobel 3x3 responds 8 per unit step per pixel: scale to a slope in mm/mm.
         gx = cv2.Sobel(d, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / (8.0 * mm), borderType=cv2.BORDER_REPLICATE)
         gy = cv2.Sobel(d, cv2.CV_32F, 0, 1, ksize=3, scale=1.0 / (8.0 * mm), borderType=cv2.BORDER_REPLICATE)
-        # surface height towards the camera is +depth, so the normal is (-gx, -gy, 1) / |.|
-        nz = gx * gx
-        nz += gy * gy
-        nz += 1.0
+        # surface height towards the camera is +depth, so the normal is (-gx, -gy, 1) * nz.
+        # cv2 calls with preallocated outputs: numpy temporaries of a full frame cost page
+        # faults and were 3x slower here.
+        shape = d.shape
+        nz, tmp = self._buffer("nz", shape), self._buffer("tmp", shape)
+        cv2.multiply(gx, gx, nz)
+        cv2.multiply(gy, gy, tmp)
+        cv2.add(nz, tmp, nz)
+        cv2.add(nz, 1.0, nz)
         cv2.sqrt(nz, nz)
         cv2.divide(1.0, nz, nz)
+        spec = sh.specular > 0
+        if spec:
+            nz2 = cv2.multiply(nz, 2.0, self._buffer("nz2", shape))
         d_l = []
-        for m in self.maps:
-            ndl = m.lz[roi] - gx * m.lx[roi]
-            ndl -= gy * m.ly[roi]
-            ndl *= nz
-            shade = np.maximum(ndl, 0.0)
-            if sh.diffuse != 1.0:
-                shade *= sh.diffuse
-            if sh.specular > 0:
+        for i, (m, kd, ks, flat) in enumerate(zip(self.maps, self._kd, self._ks, self._flat)):
+            ndl = self._buffer(f"ndl{i}", shape)
+            cv2.multiply(gx, m.lx[roi], ndl)
+            cv2.subtract(m.lz[roi], ndl, ndl)
+            cv2.multiply(gy, m.ly[roi], tmp)
+            cv2.subtract(ndl, tmp, ndl)
+            cv2.multiply(ndl, nz, ndl)                  # n . l
+            if spec:
                 # z-component of the mirror direction 2 (n.l) n - l: the camera looks along z
-                rz = ndl * nz
-                rz *= 2.0
-                rz -= m.lz[roi]
-                np.maximum(rz, 0.0, out=rz)
-                cv2.pow(rz, sh.shininess, rz)
-                shade += sh.specular * rz
-            shade *= m.att[roi]
-            shade -= m.flat[roi]
-            d_l.append(shade)
+                cv2.multiply(ndl, nz2, tmp)
+                cv2.subtract(tmp, m.lz[roi], tmp)
+                cv2.max(tmp, 0.0, tmp)
+                cv2.pow(tmp, sh.shininess, tmp)
+                cv2.multiply(tmp, ks[roi], tmp)
+            cv2.max(ndl, 0.0, ndl)
+            cv2.multiply(ndl, kd[roi], ndl)
+            if spec:
+                cv2.add(ndl, tmp, ndl)
+            cv2.subtract(ndl, flat[roi], ndl)
+            d_l.append(ndl)
         if len(d_l) <= 4:                          # cv2.transform takes 1-4 source channels
             out = cv2.transform(d_l[0] if len(d_l) == 1 else cv2.merge(d_l), self.color_matrix)
         else:
             out = sum(dl[..., None] * self.color_matrix[:, i] for i, dl in enumerate(d_l)).astype(np.float32)
-        out *= self.vignetting[roi][..., None]
         return roi, out
