@@ -1,0 +1,99 @@
+"""AlexNet in plain torch, with torchvision's layer specification.
+
+torchvision cannot be installed next to the CPU torch here, so the layers are spelled
+out: ``features`` = conv 64-11/4 p2, ReLU, max-pool 3/2, conv 192-5 p2, ReLU, max-pool,
+conv 384-3 p1, ReLU, conv 256-3 p1, ReLU, conv 256-3 p1, ReLU, max-pool. STAM cuts the
+network at that last max-pool (the paper's "output feature map from the last max-pooling
+layer"). ``width`` multiplies every channel count and the fc hidden size, so that a
+CPU-sized run keeps the architecture's shape.
+"""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+# torchvision's AlexNet widths (conv1..conv5) and fc hidden size.
+ALEXNET_CHANNELS = (64, 192, 384, 256, 256)
+ALEXNET_HIDDEN = 4096
+# torchvision pools the last feature map to 6x6 before fc6 (the map a 224 px input gives).
+ALEXNET_POOL = 6
+
+
+def scaled(c: int, width: float) -> int:
+    """Channel count ``c`` times ``width``, at least 1."""
+    return max(1, int(round(c * width)))
+
+
+class AlexNetFeatures(nn.Module):
+    """AlexNet's convolutional part; input ``B x 3 x S x S`` -> ``B x C x h x w``.
+
+    At S = 224 px, (C, h, w) = (256 * width, 6, 6); at 160 px 4 x 4; at 128 px 3 x 3.
+    """
+
+    def __init__(self, width: float = 1.0):
+        super().__init__()
+        c1, c2, c3, c4, c5 = (scaled(c, width) for c in ALEXNET_CHANNELS)
+        self.out_channels = c5
+        self.features = nn.Sequential(
+            nn.Conv2d(3, c1, kernel_size=11, stride=4, padding=2), nn.ReLU(inplace=True),
+            nn.MaxPool2d(kernel_size=3, stride=2),
+            nn.Conv2d(c1, c2, kernel_size=5, padding=2), nn.ReLU(inplace=True),
+            nn.MaxPool2d(kernel_size=3, stride=2),
+            nn.Conv2d(c2, c3, kernel_size=3, padding=1), nn.ReLU(inplace=True),
+            nn.Conv2d(c3, c4, kernel_size=3, padding=1), nn.ReLU(inplace=True),
+            nn.Conv2d(c4, c5, kernel_size=3, padding=1), nn.ReLU(inplace=True),
+            nn.MaxPool2d(kernel_size=3, stride=2),
+        )
+        # He initialisation: with PyTorch's default (uniform, gain 1/sqrt(3)) five ReLU layers
+        # without normalisation shrink the activations about 30-fold, and a model trained from
+        # scratch (no ImageNet weights here) then barely moves off chance for several epochs.
+        for m in self.features:
+            if isinstance(m, nn.Conv2d):
+                nn.init.kaiming_normal_(m.weight, mode="fan_in", nonlinearity="relu")
+                nn.init.zeros_(m.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.features(x)
+
+
+def feature_size(image_size: int) -> int:
+    """Side of the last max-pool's output for a square input of ``image_size`` px."""
+    s = (image_size + 2 * 2 - 11) // 4 + 1
+    s = (s - 3) // 2 + 1
+    s = (s - 3) // 2 + 1
+    s = (s - 3) // 2 + 1
+    return s
+
+
+class AlexNetHead(nn.Module):
+    """fc6-fc8 with dropout, on a ``B x C x h x w`` map -> ``B x num_classes`` logits.
+
+    Like torchvision, the map is adaptively average-pooled to ``pool x pool`` first
+    (6 x 6 at the paper's setting, where it is a no-op for 224 px inputs).
+    """
+
+    def __init__(self, in_channels: int, num_classes: int, width: float = 1.0,
+                 pool: int = ALEXNET_POOL, dropout: float = 0.5):
+        super().__init__()
+        hidden = scaled(ALEXNET_HIDDEN, width)
+        self.pool = nn.AdaptiveAvgPool2d((pool, pool))
+        self.classifier = nn.Sequential(
+            nn.Dropout(dropout), nn.Linear(in_channels * pool * pool, hidden), nn.ReLU(inplace=True),
+            nn.Dropout(dropout), nn.Linear(hidden, hidden), nn.ReLU(inplace=True),
+            nn.Linear(hidden, num_classes),
+        )
+
+    def forward(self, f: torch.Tensor) -> torch.Tensor:
+        return self.classifier(torch.flatten(self.pool(f), 1))
+
+
+class AlexNet(nn.Module):
+    """Single-frame AlexNet classifier, used to pretrain the backbone (ImageNet's stand-in)."""
+
+    def __init__(self, num_classes: int, width: float = 1.0, pool: int = ALEXNET_POOL, dropout: float = 0.5):
+        super().__init__()
+        self.backbone = AlexNetFeatures(width)
+        self.head = AlexNetHead(self.backbone.out_channels, num_classes, width, pool, dropout)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.head(self.backbone(x))

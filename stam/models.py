@@ -1,0 +1,233 @@
+"""The three models of the paper's ablation: CNN baseline, CNN + spatial attention, STAM.
+
+Every model takes a batch of tactile windows ``B x n x 3 x S x S`` (float, normalised
+as in :mod:`stam.data`) and returns class logits ``B x num_classes``. Each frame goes
+through the same AlexNet feature extractor (``F``: ``C x h x w``, cut at the last
+max-pool); then
+
+* ``cnn``:    F -> per-frame AlexNet head (fc6-fc8) -> fusion over the n frames;
+* ``cnn_sa``: F -> spatial attention (Eq. 1) -> head -> fusion;
+* ``stam``:   F -> spatial attention -> ``modules`` temporal attention blocks in
+  parallel over all n*h*w positions (Eq. 2-3), combined -> head -> fusion.
+
+Choices the paper leaves open (each an option of :func:`build`, argued in docs/stam.md):
+
+* ``fusion`` of the n frames: ``mean_logits`` (default; average of per-frame class
+  scores, parameter-free, so the baseline has exactly AlexNet's 57.4 M parameters as
+  the paper reports), ``mean_features`` (average the feature maps before fc6) or
+  ``max_features``.
+* ``combine`` of the parallel temporal modules: ``mean`` (default, parameter-free; the
+  paper averages the modules' attention maps for Fig. 7, so averaging their outputs is
+  the closest reading) or ``concat`` (channel concatenation then a 1x1x1 projection back
+  to C, as multi-head attention does).
+* ``qk_reduction``: q and k have C / qk_reduction channels (default 8, as SAGAN); v keeps C.
+* ``residual_gain``: ``learned`` (default; SAGAN's gamma * A v + x with gamma starting at 0,
+  so STAM starts as exactly CNN + SA on the same pretrained weights) or ``fixed``
+  (Eq. 3 verbatim: A v + x).
+* ``sa_batchnorm``: the official CBAM code puts BatchNorm after the 7x7 conv; the paper's
+  Eq. 1 has none (default False).
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from gelsim.errors import GelsimError
+
+from .backbone import AlexNetFeatures, AlexNetHead, feature_size
+
+MODEL_NAMES = ("cnn", "cnn_sa", "stam")
+FUSIONS = ("mean_logits", "mean_features", "max_features")
+COMBINES = ("mean", "concat")
+RESIDUAL_GAINS = ("learned", "fixed")
+# Paper's reported parameter counts (Sec. IV-B), at full AlexNet, 224 px, 100 classes, n = 2.
+PAPER_PARAMS = {"cnn": 57.4e6, "stam": 68.8e6}
+
+
+class SpatialAttention(nn.Module):
+    """Eq. 1: ``A_S(F) = sigmoid(conv7x7([MaxPool_c(F); AvgPool_c(F)]))``, output ``A_S(F) * F``.
+
+    Input and output ``B x C x H x W``; the map ``A_S`` is ``B x 1 x H x W`` in (0, 1).
+    The pooling runs over the channel axis; the 7x7 convolution is zero-padded by 3.
+    """
+
+    def __init__(self, kernel_size: int = 7, batchnorm: bool = False):
+        super().__init__()
+        self.conv = nn.Conv2d(2, 1, kernel_size, padding=kernel_size // 2, bias=not batchnorm)
+        self.bn = nn.BatchNorm2d(1) if batchnorm else nn.Identity()
+        self.last_map: torch.Tensor | None = None  # kept for stam.explain
+
+    def attention_map(self, x: torch.Tensor) -> torch.Tensor:
+        """``B x 1 x H x W`` spatial attention map of ``x`` (``B x C x H x W``)."""
+        desc = torch.cat([x.amax(dim=1, keepdim=True), x.mean(dim=1, keepdim=True)], dim=1)
+        return torch.sigmoid(self.bn(self.conv(desc)))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        a = self.attention_map(x)
+        self.last_map = a.detach()
+        return a * x
+
+
+class TemporalAttention(nn.Module):
+    """Eq. 2-3: self-attention over all ``m = n*h*w`` positions of a window.
+
+    Input and output ``B x n x C x h x w``. q, k, v are 1x1x1 convolutions (per-position
+    linear maps) to ``C/qk_reduction``, ``C/qk_reduction`` and ``C`` channels. With
+    ``s_ij = q(F_i) . k(F_j)``, the map ``A[j, i] = softmax_i(s_ij)`` (each row j sums to 1
+    over the keys i) and ``F^T_j = gain * sum_i A[j, i] v(F_i) + F_j``, where gain is a
+    learned scalar starting at ``gamma_init`` (``residual_gain="learned"``) or 1 (``"fixed"``,
+    Eq. 3 as printed). No 1/sqrt(d) scaling, as in the paper and SAGAN.
+    """
+
+    def __init__(self, channels: int, qk_reduction: int = 8, residual_gain: str = "learned",
+                 gamma_init: float = 0.0):
+        super().__init__()
+        if residual_gain not in RESIDUAL_GAINS:
+            raise GelsimError(f"unknown residual_gain {residual_gain!r}; choose one of {', '.join(RESIDUAL_GAINS)}")
+        cq = max(1, channels // qk_reduction)
+        self.q = nn.Conv3d(channels, cq, kernel_size=1)
+        self.k = nn.Conv3d(channels, cq, kernel_size=1)
+        self.v = nn.Conv3d(channels, channels, kernel_size=1)
+        self.gamma = nn.Parameter(torch.tensor(float(gamma_init))) if residual_gain == "learned" else None
+        self.last_map: torch.Tensor | None = None  # B x m x m, kept for stam.explain
+
+    def forward(self, x: torch.Tensor, return_map: bool = False):
+        b, n, c, h, w = x.shape
+        xc = x.permute(0, 2, 1, 3, 4)  # B x C x n x h x w, positions ordered (frame, row, col)
+        q = self.q(xc).flatten(2)  # B x Cq x m
+        k = self.k(xc).flatten(2)
+        v = self.v(xc).flatten(2)  # B x C x m
+        s = torch.bmm(k.transpose(1, 2), q)  # s[b, j, i] = k_j . q_i = s_ij of Eq. 2
+        a = torch.softmax(s, dim=2)  # normalised over the keys i
+        out = torch.bmm(v, a.transpose(1, 2))  # out[:, :, j] = sum_i A[j, i] v_i
+        if self.gamma is not None:
+            out = self.gamma * out
+        out = out.view(b, c, n, h, w).permute(0, 2, 1, 3, 4) + x
+        self.last_map = a.detach()
+        return (out, a) if return_map else out
+
+
+class SequenceModel(nn.Module):
+    """Shared frame: per-frame AlexNet features -> optional attention -> head -> fusion."""
+
+    def __init__(self, name: str, n_frames: int, num_classes: int, *, width: float = 1.0,
+                 image_size: int = 224, fusion: str = "mean_logits", modules: int = 10,
+                 combine: str = "mean", qk_reduction: int = 8, residual_gain: str = "learned",
+                 sa_batchnorm: bool = False, dropout: float = 0.5, pool: int | None = None):
+        super().__init__()
+        if name not in MODEL_NAMES:
+            raise GelsimError(f"unknown model {name!r}; choose one of {', '.join(MODEL_NAMES)}")
+        if fusion not in FUSIONS:
+            raise GelsimError(f"unknown fusion {fusion!r}; choose one of {', '.join(FUSIONS)}")
+        if combine not in COMBINES:
+            raise GelsimError(f"unknown combine {combine!r}; choose one of {', '.join(COMBINES)}")
+        if n_frames < 1:
+            raise GelsimError(f"n_frames must be at least 1, got {n_frames}; use 2..7 as the paper")
+        if modules < 1 or qk_reduction < 1:
+            raise GelsimError("modules and qk_reduction must be at least 1; use the defaults 10 and 8")
+        fs = feature_size(image_size)
+        if fs < 1:
+            raise GelsimError(f"image_size {image_size} px is too small for AlexNet; use at least 64")
+        self.name, self.n_frames, self.num_classes, self.fusion = name, n_frames, num_classes, fusion
+        self.combine = combine
+        self.backbone = AlexNetFeatures(width)
+        c = self.backbone.out_channels
+        self.spatial = SpatialAttention(batchnorm=sa_batchnorm) if name in ("cnn_sa", "stam") else None
+        if name == "stam":
+            self.temporal = nn.ModuleList(
+                TemporalAttention(c, qk_reduction, residual_gain) for _ in range(modules))
+            self.project = nn.Conv3d(c * modules, c, kernel_size=1) if combine == "concat" else None
+        else:
+            self.temporal, self.project = None, None
+        # Pool to the backbone's own map size unless told: 6 x 6 at 224 px (torchvision's value).
+        self.head = AlexNetHead(c, num_classes, width, pool or fs, dropout)
+
+    def frame_features(self, x: torch.Tensor) -> torch.Tensor:
+        """``B x n x 3 x S x S`` images -> ``B x n x C x h x w`` backbone features."""
+        b, n = x.shape[:2]
+        f = self.backbone(x.flatten(0, 1))
+        return f.view(b, n, *f.shape[1:])
+
+    def attend(self, f: torch.Tensor) -> torch.Tensor:
+        """Attention part on backbone features; ``B x n x C x h x w`` in and out."""
+        b, n = f.shape[:2]
+        if self.spatial is not None:
+            f = self.spatial(f.flatten(0, 1)).view_as(f)
+        if self.temporal is not None:
+            outs = [m(f) for m in self.temporal]
+            if self.project is None:
+                f = torch.stack(outs, 0).mean(0)
+            else:
+                cat = torch.cat(outs, 2).permute(0, 2, 1, 3, 4)  # B x (C*M) x n x h x w
+                f = self.project(cat).permute(0, 2, 1, 3, 4)
+        return f
+
+    def classify(self, f: torch.Tensor) -> torch.Tensor:
+        """Head and fusion: attended ``B x n x C x h x w`` -> ``B x num_classes`` logits."""
+        b, n = f.shape[:2]
+        if self.fusion == "mean_logits":
+            return self.head(f.flatten(0, 1)).view(b, n, -1).mean(1)
+        pooled = f.mean(1) if self.fusion == "mean_features" else f.amax(1)
+        return self.head(pooled)
+
+    def forward_features(self, f: torch.Tensor) -> torch.Tensor:
+        """Logits from precomputed backbone features (frozen-backbone training)."""
+        return self.classify(self.attend(f))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.ndim != 5 or x.shape[1] != self.n_frames:
+            raise GelsimError(f"{self.name} expects B x {self.n_frames} x 3 x S x S input, got {tuple(x.shape)}")
+        return self.forward_features(self.frame_features(x))
+
+
+def build(name: str, n_frames: int, num_classes: int, **options) -> SequenceModel:
+    """Build ``cnn``, ``cnn_sa`` or ``stam`` for windows of ``n_frames`` frames.
+
+    Options (see the module docstring): width (channel multiplier, 1.0 = AlexNet),
+    image_size (px, square input; 224), fusion, modules (10), combine, qk_reduction (8),
+    residual_gain, sa_batchnorm, dropout (0.5), pool (fc6 input map side; default the
+    backbone's map side).
+    """
+    return SequenceModel(name, n_frames, num_classes, **options)
+
+
+def count_parameters(model: nn.Module) -> int:
+    """Number of parameters (all trainable in these models)."""
+    return sum(p.numel() for p in model.parameters())
+
+
+def parameter_count(name: str, n_frames: int = 2, num_classes: int = 100, **options) -> int:
+    """Parameter count of :func:`build` without allocating weights (meta device)."""
+    with torch.device("meta"):
+        return count_parameters(build(name, n_frames, num_classes, **options))
+
+
+def paper_readings() -> list[dict]:
+    """Parameter counts of several readings of the paper at its setting (full width, 224 px,
+    100 classes, n = 2), to compare with its 57.4 M (baseline) and 68.8 M (STAM).
+
+    Counts are computed from layer sizes; ``alexnet`` (57.41 M) is the baseline's.
+    """
+    c, hw, hidden, k, n, mods = 256, 36, 4096, 100, 2, 10
+    alexnet = parameter_count("cnn", n, k)
+    qkv_full = 3 * (c * c + c)  # one module with q, k, v all C -> C
+    qkv_red8 = 2 * (c * (c // 8) + c // 8) + (c * c + c)
+    rows = [
+        ("cnn: AlexNet conv + fc6-fc8 (100 classes), parameter-free fusion", alexnet),
+        ("stam default: + SA + 10 modules, q/k at C/8, gamma, mean-combined",
+         parameter_count("stam", n, k)),
+        ("stam: + SA + 10 modules with q, k, v all C -> C", parameter_count("stam", n, k, qk_reduction=1)),
+        ("stam: + 10 modules C/8, concatenated and projected 2560 -> 256",
+         parameter_count("stam", n, k, combine="concat")),
+        ("stam, fc6 on the n frames' features concatenated (n*9216 -> 4096)",
+         alexnet + n * c * hw * hidden - c * hw * hidden + mods * qkv_red8),
+        ("stam, one FC on the flattened outputs of all 10 modules (no fc6/fc7)",
+         alexnet - (c * hw * hidden + hidden) - (hidden * hidden + hidden) - (hidden * k + k)
+         + mods * qkv_full + mods * n * c * hw * k + k),
+        ("AlexNet + 10 full q,k,v modules + one FC flatten(n*h*w*C = 18432) -> 512",
+         alexnet + mods * qkv_full + n * c * hw * 512 + 512),
+        ("AlexNet + 10 C/8 modules + FC on the pooled concatenation (2560 -> 4096)",
+         alexnet + mods * qkv_red8 + mods * c * hidden + hidden),
+    ]
+    return [{"reading": r, "params": int(p), "params_m": round(p / 1e6, 2)} for r, p in rows]

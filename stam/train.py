@@ -1,0 +1,408 @@
+"""Training: a TOML config plus overrides, seeds, `last`/`best` checkpoints, resume, CSV logs.
+
+One run trains one model on one setting (n frames, clean or noisy windows) and writes to
+its output directory:
+
+* ``config.json``   the resolved configuration;
+* ``log.csv``       one row per epoch (losses, accuracies, learning rate, seconds);
+* ``last.pt``       model, optimiser, scheduler, epoch and RNG state, for ``--resume``;
+* ``best.pt``       the weights with the best validation accuracy.
+
+Checkpoints hold only tensors and plain Python values and are loaded with
+``weights_only=True``. With ``freeze_backbone`` the AlexNet features of every frame are
+computed once and only the attention modules and the head are trained (the ``cpu``
+preset's way of fitting the sweep on two cores).
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import os
+import random
+import sys
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch.utils.data import DataLoader
+
+from gelsim.errors import GelsimError
+
+from . import models
+from .backbone import AlexNet, feature_size
+from .data import DEFAULT_ONSET_THRESHOLD, FrameDataset, TactileDataset, WindowDataset, backbone_features
+
+
+@dataclass
+class TrainConfig:
+    """Everything a run depends on. Units: px for sizes, frames for n, sequences for batches."""
+
+    data: str = ""                 # dataset directory (gelsim generate --out)
+    out: str = ""                  # run directory
+    model: str = "stam"            # cnn | cnn_sa | stam
+    frames: int = 2                # n consecutive frames per window
+    start: str = "contact"         # contact (clean) | zero (noisy)
+    onset: str = "detected"        # detected | true
+    onset_threshold: float = DEFAULT_ONSET_THRESHOLD  # grey levels
+    image_size: int = 224          # px
+    width: float = 1.0             # AlexNet channel multiplier
+    fusion: str = "mean_logits"
+    modules: int = 10
+    combine: str = "mean"
+    qk_reduction: int = 8
+    residual_gain: str = "learned"
+    sa_batchnorm: bool = False
+    dropout: float = 0.5
+    pretrained: str = ""           # backbone checkpoint from `stam pretrain` ("" = random init)
+    freeze_backbone: bool = False
+    epochs: int = 30
+    batch_size: int = 32
+    optimizer: str = "sgd"         # sgd | adam
+    lr: float = 0.01
+    momentum: float = 0.9
+    weight_decay: float = 5e-4
+    lr_schedule: str = "cosine"    # cosine | constant
+    seed: int = 0
+    threads: int = 0               # torch CPU threads (0 = torch's default)
+    workers: int = 0               # DataLoader worker processes
+    device: str = "auto"           # auto | cpu | cuda
+    cache_dir: str = ""            # frame cache ("" = DIR/.stam-cache)
+    progress: bool = True          # tqdm progress bar
+
+    def model_options(self) -> dict:
+        return {"width": self.width, "image_size": self.image_size, "fusion": self.fusion,
+                "modules": self.modules, "combine": self.combine, "qk_reduction": self.qk_reduction,
+                "residual_gain": self.residual_gain, "sa_batchnorm": self.sa_batchnorm, "dropout": self.dropout}
+
+
+FIELDS = {f.name: f for f in dataclasses.fields(TrainConfig)}
+
+
+def _coerce(key: str, value, source: str):
+    if key not in FIELDS:
+        raise GelsimError(f"unknown config key {key!r} in {source}; valid keys: {', '.join(FIELDS)}")
+    kind = type(FIELDS[key].default)
+    if kind is bool:
+        if isinstance(value, str):
+            if value.lower() in ("1", "true", "yes", "on"):
+                return True
+            if value.lower() in ("0", "false", "no", "off"):
+                return False
+            raise GelsimError(f"{key}={value!r} in {source} is not a boolean; use true or false")
+        if isinstance(value, bool):
+            return value
+    try:
+        if kind is int and isinstance(value, float) and not value.is_integer():
+            raise ValueError
+        return kind(value)
+    except (TypeError, ValueError):
+        raise GelsimError(f"{key}={value!r} in {source} is not a valid {kind.__name__}; fix the value") from None
+
+
+def load_config(path: str | Path | None = None, overrides: dict | None = None,
+                sets: list[str] | None = None) -> TrainConfig:
+    """Defaults, then the TOML file ``path``, then ``overrides`` (dict), then ``sets`` ("key=value")."""
+    values: dict = {}
+    if path:
+        p = Path(path)
+        try:
+            raw = tomllib.loads(p.read_text())
+        except FileNotFoundError:
+            raise GelsimError(f"config file {p} not found; check the path") from None
+        except tomllib.TOMLDecodeError as e:
+            raise GelsimError(f"config file {p} is not valid TOML ({e}); fix it") from None
+        for k, v in raw.items():
+            values[k] = _coerce(k, v, str(p))
+    for k, v in (overrides or {}).items():
+        if v is not None:
+            values[k] = _coerce(k, v, "the command line")
+    for item in sets or []:
+        if "=" not in item:
+            raise GelsimError(f"--set {item!r} is not key=value; write e.g. --set lr=0.001")
+        k, v = item.split("=", 1)
+        values[k.strip()] = _coerce(k.strip(), v.strip(), "--set")
+    cfg = TrainConfig(**values)
+    validate(cfg)
+    return cfg
+
+
+def validate(cfg: TrainConfig) -> None:
+    checks = [
+        (cfg.model in models.MODEL_NAMES, f"model {cfg.model!r} unknown; choose {', '.join(models.MODEL_NAMES)}"),
+        (cfg.optimizer in ("sgd", "adam"), f"optimizer {cfg.optimizer!r} unknown; choose sgd or adam"),
+        (cfg.lr_schedule in ("cosine", "constant"), f"lr_schedule {cfg.lr_schedule!r} unknown; choose cosine or constant"),
+        (cfg.epochs >= 1 and cfg.batch_size >= 1, "epochs and batch_size must be at least 1"),
+        (cfg.lr > 0, f"lr must be positive, got {cfg.lr}"),
+        (0 < cfg.width <= 4, f"width must be in (0, 4], got {cfg.width}"),
+        (cfg.image_size >= 64, f"image_size must be at least 64 px, got {cfg.image_size}"),
+        (cfg.frames >= 1, f"frames must be at least 1, got {cfg.frames}"),
+        (cfg.device in ("auto", "cpu", "cuda"), f"device {cfg.device!r} unknown; choose auto, cpu or cuda"),
+    ]
+    for ok, msg in checks:
+        if not ok:
+            raise GelsimError(msg)
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise GelsimError("device cuda requested but no GPU is available; use --set device=cpu")
+    return torch.device(name)
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def load_checkpoint(path: str | Path) -> dict:
+    """Load a stam checkpoint safely (``weights_only=True``)."""
+    p = Path(path)
+    if not p.is_file():
+        raise GelsimError(f"checkpoint {p} not found; train first or check the path")
+    try:
+        return torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as e:  # a truncated or foreign file: one line, not a traceback
+        raise GelsimError(f"cannot load checkpoint {p} ({type(e).__name__}); retrain or check the file") from None
+
+
+def save_atomic(obj, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def load_backbone(model_backbone: torch.nn.Module, path: str) -> None:
+    ck = load_checkpoint(path)
+    state = ck.get("backbone", ck)
+    try:
+        model_backbone.load_state_dict(state)
+    except RuntimeError:
+        raise GelsimError(f"backbone weights in {path} do not fit this model (different width?); "
+                          "pretrain with the same width") from None
+
+
+def make_loader(ds, batch_size: int, shuffle: bool, seed: int, epoch: int, workers: int) -> DataLoader:
+    # A generator per epoch (seed, epoch) makes the shuffling order independent of resumes.
+    g = torch.Generator().manual_seed(seed * 100003 + epoch)
+    return DataLoader(ds, batch_size=batch_size, shuffle=shuffle, generator=g, num_workers=workers,
+                      drop_last=False)
+
+
+def run_epoch(model, loader, device, forward, optimizer=None, progress=False, desc="") -> tuple[float, float]:
+    """One pass; trains when ``optimizer`` is given. Returns (mean loss, accuracy in [0, 1])."""
+    train = optimizer is not None
+    model.train(train)
+    total_loss, correct, count = 0.0, 0, 0
+    it = loader
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(loader, desc=desc, leave=False, file=sys.stderr, dynamic_ncols=True)
+    with torch.set_grad_enabled(train):
+        for x, y in it:
+            x, y = x.to(device), y.to(device)
+            logits = forward(x)
+            loss = F.cross_entropy(logits, y)
+            if train:
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                optimizer.step()
+            total_loss += loss.item() * y.shape[0]
+            correct += (logits.argmax(1) == y).sum().item()
+            count += y.shape[0]
+    return total_loss / max(count, 1), correct / max(count, 1)
+
+
+def make_optimizer(cfg: TrainConfig, params) -> torch.optim.Optimizer:
+    params = [p for p in params if p.requires_grad]
+    if cfg.optimizer == "sgd":
+        return torch.optim.SGD(params, lr=cfg.lr, momentum=cfg.momentum, weight_decay=cfg.weight_decay)
+    return torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+
+
+def make_scheduler(cfg: TrainConfig, opt):
+    if cfg.lr_schedule == "cosine":
+        return torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs)
+    return torch.optim.lr_scheduler.LambdaLR(opt, lambda e: 1.0)
+
+
+class CsvLog:
+    """Per-epoch CSV log; on resume, rows after the checkpoint's epoch are dropped."""
+
+    COLUMNS = ["epoch", "train_loss", "train_acc", "val_loss", "val_acc", "lr", "seconds"]
+
+    def __init__(self, path: Path, keep_epochs: int):
+        self.path = path
+        rows = []
+        if path.is_file() and keep_epochs > 0:
+            with open(path) as f:
+                rows = [r for r in csv.DictReader(f) if int(r["epoch"]) <= keep_epochs]
+        with open(path, "w", newline="") as f:
+            w = csv.DictWriter(f, self.COLUMNS)
+            w.writeheader()
+            w.writerows(rows)
+        self.tb = None
+        try:  # TensorBoard is optional: used when installed
+            from torch.utils.tensorboard import SummaryWriter
+
+            self.tb = SummaryWriter(str(path.parent / "tb"))
+        except Exception:
+            self.tb = None
+
+    def write(self, row: dict) -> None:
+        with open(self.path, "a", newline="") as f:
+            csv.DictWriter(f, self.COLUMNS).writerow(row)
+        if self.tb is not None:
+            for k, v in row.items():
+                if k != "epoch":
+                    self.tb.add_scalar(k, v, row["epoch"])
+            self.tb.flush()
+
+
+def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = None,
+          data: TactileDataset | None = None, log=print) -> dict:
+    """Train one run into ``cfg.out``. ``features`` (seq id -> T x C x h x w) skips the backbone
+    pass when the backbone is frozen. Returns a summary dict (best validation accuracy, epoch, paths)."""
+    if not cfg.data or not cfg.out:
+        raise GelsimError("both data and out are required; pass --data DIR --out DIR")
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    device = resolve_device(cfg.device)
+    data = data or TactileDataset(cfg.data, cfg.cache_dir or None)
+    seed_everything(cfg.seed)
+    model = models.build(cfg.model, cfg.frames, data.num_classes, **cfg.model_options())
+
+    start_epoch, best_acc, best_epoch = 1, -1.0, 0
+    last_path, best_path = out / "last.pt", out / "best.pt"
+    ck = None
+    if resume:
+        if not last_path.is_file():
+            raise GelsimError(f"nothing to resume in {out} (no last.pt); run without --resume")
+        ck = load_checkpoint(last_path)
+        saved = dict(ck["config"])
+        mine = dataclasses.asdict(cfg)
+        diff = [k for k in mine if k not in ("epochs", "progress", "threads", "workers", "device")
+                and saved.get(k) != mine[k]]
+        if diff:
+            raise GelsimError(f"--resume with a different config ({', '.join(diff)}); "
+                              "use the saved config or a new --out")
+    else:
+        if cfg.pretrained:
+            load_backbone(model.backbone, cfg.pretrained)
+    if cfg.freeze_backbone:
+        model.backbone.requires_grad_(False)
+    model.to(device)
+
+    if cfg.freeze_backbone and features is None:
+        seqs = data.split("train") + data.split("val")
+        features = backbone_features(model.backbone, data, seqs, cfg.image_size)
+    feats = features if cfg.freeze_backbone else None
+    train_ds = WindowDataset(data, "train", cfg.frames, cfg.start, cfg.image_size, cfg.onset,
+                             cfg.onset_threshold, feats)
+    val_ds = WindowDataset(data, "val", cfg.frames, cfg.start, cfg.image_size, cfg.onset,
+                           cfg.onset_threshold, feats)
+    forward = model.forward_features if cfg.freeze_backbone else model
+
+    opt = make_optimizer(cfg, model.parameters())
+    sched = make_scheduler(cfg, opt)
+    if ck is not None:
+        model.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        sched.load_state_dict(ck["scheduler"])
+        torch.set_rng_state(ck["rng"])
+        start_epoch, best_acc, best_epoch = ck["epoch"] + 1, ck["best_acc"], ck["best_epoch"]
+        if hasattr(sched, "T_max"):  # more epochs on resume: stretch the cosine to the new end
+            sched.T_max = cfg.epochs
+    config = dataclasses.asdict(cfg)
+    (out / "config.json").write_text(json.dumps(config, indent=2))
+    logger = CsvLog(out / "log.csv", start_epoch - 1)
+
+    for epoch in range(start_epoch, cfg.epochs + 1):
+        t0 = time.perf_counter()
+        lr = opt.param_groups[0]["lr"]
+        tl, ta = run_epoch(model, make_loader(train_ds, cfg.batch_size, True, cfg.seed, epoch, cfg.workers),
+                           device, forward, opt, cfg.progress, f"epoch {epoch}/{cfg.epochs}")
+        vl, va = run_epoch(model, make_loader(val_ds, cfg.batch_size, False, cfg.seed, epoch, cfg.workers),
+                           device, forward)
+        sched.step()
+        row = {"epoch": epoch, "train_loss": round(tl, 5), "train_acc": round(ta, 5), "val_loss": round(vl, 5),
+               "val_acc": round(va, 5), "lr": lr, "seconds": round(time.perf_counter() - t0, 3)}
+        logger.write(row)
+        if va > best_acc:
+            best_acc, best_epoch = va, epoch
+            save_atomic({"model": model.state_dict(), "config": config, "epoch": epoch, "val_acc": va,
+                         "num_classes": data.num_classes, "class_names": data.class_names}, best_path)
+        save_atomic({"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+                     "epoch": epoch, "best_acc": best_acc, "best_epoch": best_epoch, "config": config,
+                     "rng": torch.get_rng_state(), "num_classes": data.num_classes,
+                     "class_names": data.class_names}, last_path)
+        if log:
+            log(f"epoch {epoch}: train loss {tl:.3f} acc {ta:.3f}, val loss {vl:.3f} acc {va:.3f} "
+                f"({row['seconds']:.1f} s)")
+    return {"out": str(out), "best_val_acc": best_acc, "best_epoch": best_epoch, "epochs": cfg.epochs,
+            "train_windows": len(train_ds), "val_windows": len(val_ds),
+            "undetected_onsets_train": train_ds.undetected, "best": str(best_path), "last": str(last_path)}
+
+
+def model_from_checkpoint(path: str | Path) -> tuple[models.SequenceModel, TrainConfig, dict]:
+    """Rebuild the model stored in a ``best.pt``/``last.pt``; returns (model in eval mode, config, checkpoint)."""
+    ck = load_checkpoint(path)
+    if "model" not in ck or "config" not in ck:
+        raise GelsimError(f"{path} is not a stam training checkpoint; pass best.pt or last.pt of a run")
+    cfg = TrainConfig(**{k: v for k, v in ck["config"].items() if k in FIELDS})
+    model = models.build(cfg.model, cfg.frames, int(ck["num_classes"]), **cfg.model_options())
+    model.load_state_dict(ck["model"])
+    return model.eval(), cfg, ck
+
+
+def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: int = 224, epochs: int = 10,
+             batch_size: int = 64, lr: float = 0.01, seed: int = 0, contact_only: bool = True,
+             onset_threshold: float = DEFAULT_ONSET_THRESHOLD, device: str = "auto", cache_dir: str = "",
+             progress: bool = True, data: TactileDataset | None = None, log=print) -> dict:
+    """Train a single-frame AlexNet on the training split's frames (the stand-in for ImageNet
+    pretraining) and save its backbone as ``out/backbone.pt`` (``{"backbone": state_dict, ...}``).
+    Resumable: an existing ``backbone.pt`` with the same settings is returned as is."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "backbone.pt"
+    settings = {"width": width, "image_size": image_size, "epochs": epochs, "batch_size": batch_size, "lr": lr,
+                "seed": seed, "contact_only": contact_only, "onset_threshold": onset_threshold}
+    if path.is_file():
+        ck = load_checkpoint(path)
+        if ck.get("settings") == settings:
+            return {"path": str(path), "val_acc": ck["val_acc"], "reused": True}
+    dev = resolve_device(device)
+    data = data or TactileDataset(data_dir, cache_dir or None)
+    seed_everything(seed)
+    net = AlexNet(data.num_classes, width, pool=feature_size(image_size)).to(dev)
+    train_ds = FrameDataset(data, "train", image_size, contact_only, onset_threshold)
+    val_ds = FrameDataset(data, "val", image_size, contact_only, onset_threshold)
+    opt = torch.optim.SGD(net.parameters(), lr=lr, momentum=0.9, weight_decay=5e-4)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs)
+    best, rows = -1.0, []
+    for epoch in range(1, epochs + 1):
+        t0 = time.perf_counter()
+        tl, ta = run_epoch(net, make_loader(train_ds, batch_size, True, seed, epoch, 0), dev, net, opt,
+                           progress, f"pretrain {epoch}/{epochs}")
+        vl, va = run_epoch(net, make_loader(val_ds, batch_size, False, seed, epoch, 0), dev, net)
+        sched.step()
+        rows.append({"epoch": epoch, "train_loss": tl, "train_acc": ta, "val_loss": vl, "val_acc": va,
+                     "seconds": time.perf_counter() - t0})
+        if log:
+            log(f"pretrain epoch {epoch}: train acc {ta:.3f}, val frame acc {va:.3f} ({rows[-1]['seconds']:.1f} s)")
+        if va > best:
+            best = va
+            state = {k: v.detach().cpu().clone() for k, v in net.backbone.state_dict().items()}
+    save_atomic({"backbone": state, "settings": settings, "val_acc": best, "log": rows}, path)
+    return {"path": str(path), "val_acc": best, "reused": False, "train_frames": len(train_ds)}
