@@ -97,21 +97,21 @@ def run_generate(args: argparse.Namespace) -> int:
     if args.dry_run:
         return _dry_run(cfg, args)
     bar = None
-    if not args.json:
-        from tqdm import tqdm
-
-        bar = tqdm(total=None, unit="seq", desc="generating", dynamic_ncols=True, file=sys.stderr)
     frames_done = [0]
     t0 = time.perf_counter()
 
     def progress(done, total, rec):
+        nonlocal bar
         frames_done[0] += rec["num_frames"]
-        if bar is not None:
-            if bar.total != total:
-                bar.total = total
-                bar.n = done - 1
-            bar.update(1)
-            bar.set_postfix(fps=f"{frames_done[0] / (time.perf_counter() - t0):.1f}")
+        if args.json:
+            return
+        if bar is None:  # created on the first result, so bad input never shows a bar
+            from tqdm import tqdm
+
+            bar = tqdm(total=total, initial=done - 1, unit="seq", desc="generating", dynamic_ncols=True,
+                       file=sys.stderr)
+        bar.update(1)
+        bar.set_postfix(frames_per_s=f"{frames_done[0] / (time.perf_counter() - t0):.1f}")
 
     try:
         manifest = dataset.generate(cfg, args.out, workers=args.workers, progress=progress,

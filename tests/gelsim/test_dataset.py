@@ -1,0 +1,152 @@
+"""A tiny dataset end to end, through the CLI as a user runs it."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gelsim.cli import main
+from gelsim.dataset import load_manifest, verify
+from gelsim.video import count_frames
+
+TINY = ["--fabrics", "3", "--sequences-per-fabric", "2", "--resolution", "96x72", "--fidelity", "fast",
+        "--frames", "8-10", "--precontact", "2-3", "--no-previews", "--json"]
+
+
+def _gen(out, *extra, workers=1):
+    return main(["generate", "--out", str(out), "--workers", str(workers), *TINY, *extra])
+
+
+def _contents(root: Path) -> dict:
+    m = load_manifest(root)
+    return {"sequences": m["sequences"], "options": m["options"], "complete": m["complete"]}
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ds") / "one"
+    assert _gen(out) == 0
+    return out
+
+
+def test_manifest_validates(tiny):
+    m = load_manifest(tiny)
+    assert m["complete"] is True
+    assert len(m["sequences"]) == 6
+    keys = {"id", "fabric_id", "action", "num_frames", "contact_onset", "split", "video", "labels"}
+    for s in m["sequences"]:
+        assert keys <= set(s)
+        assert s["action"] in ("press", "slip", "twist")
+        assert s["split"] in ("train", "val", "test")
+        assert 8 <= s["num_frames"] <= 10
+        assert 2 <= s["contact_onset"] <= 3
+    assert m["profile"]["width_px"] == 96 and m["profile"]["height_px"] == 72
+
+
+def test_videos_decode_and_precontact_has_zero_force(tiny):
+    m = load_manifest(tiny)
+    for s in m["sequences"]:
+        assert count_frames(tiny / s["video"]) == s["num_frames"]
+        with np.load(tiny / s["labels"]) as z:
+            force = z["normal_force_n"]
+            in_contact = z["in_contact"]
+            assert len(force) == s["num_frames"]
+            k = s["contact_onset"]
+            assert np.all(force[:k] == 0) and not in_contact[:k].any()
+            assert in_contact[k] and force[k] > 0
+    assert verify(tiny) == []
+
+
+def test_two_workers_give_identical_dataset(tiny, tmp_path):
+    out = tmp_path / "two"
+    assert _gen(out, workers=2) == 0
+    assert _contents(out) == _contents(tiny)
+
+
+def test_rerun_is_a_no_op(tiny):
+    before = {p: p.stat().st_mtime_ns for p in tiny.rglob("*.mp4")}
+    assert _gen(tiny) == 0
+    assert {p: p.stat().st_mtime_ns for p in tiny.rglob("*.mp4")} == before
+
+
+def test_killed_run_resumes_to_the_same_dataset(tiny, tmp_path):
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "gelsim", "generate", "--out", str(out), "--workers", "1", *TINY]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        if len(list((out / "records").glob("*.json"))) >= 2 if (out / "records").exists() else False:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run finished before it could be killed; the test needs a bigger dataset"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    m = load_manifest(out)
+    assert m["complete"] is False
+    assert verify(out, decode=False)  # an interrupted dataset is reported as faulty
+    assert _gen(out) == 0
+    assert _contents(out) == _contents(tiny)
+    assert not list(out.rglob(".*partial*"))
+
+
+def test_verify_catches_truncated_and_missing(tiny, tmp_path, capsys):
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(tiny, bad)
+    m = load_manifest(bad)
+    v0 = bad / m["sequences"][0]["video"]
+    v0.write_bytes(v0.read_bytes()[: v0.stat().st_size // 2])
+    (bad / m["sequences"][1]["labels"]).unlink()
+    faults = verify(bad)
+    assert any(m["sequences"][0]["id"] in f and "checksum" in f for f in faults)
+    assert any(m["sequences"][1]["id"] in f and "missing" in f for f in faults)
+    assert main(["verify", str(bad)]) == 1
+    assert main(["verify", str(tiny)]) == 0
+
+
+@pytest.mark.parametrize("args,msg", [
+    (["--fabrics", "101"], "fabrics"),
+    (["--fabrics", "0"], "fabrics"),
+    (["--profile", "nosuch"], "unknown sensor profile"),
+    (["--actions", "7:1"], "--actions"),
+    (["--frames", "36-25"], "inverted"),
+    (["--precontact", "30-40"], "precontact"),
+])
+def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, args, msg):
+    out = tmp_path / "never"
+    code = main(["generate", "--out", str(out), *args])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert msg in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_foreign_directory_is_refused_and_untouched(tmp_path, capsys):
+    d = tmp_path / "mine"
+    d.mkdir()
+    (d / "thesis.tex").write_text("precious")
+    assert main(["generate", "--out", str(d), *TINY]) == 2
+    assert "not a gelsim dataset" in capsys.readouterr().err
+    assert [p.name for p in d.iterdir()] == ["thesis.tex"]
+
+
+def test_other_options_refused_on_existing_dataset(tiny, capsys):
+    before = (tiny / "manifest.json").read_bytes()
+    assert main(["generate", "--out", str(tiny), *TINY, "--seed", "5"]) == 2
+    assert "other options" in capsys.readouterr().err
+    assert (tiny / "manifest.json").read_bytes() == before
+
+
+def test_dry_run_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "dry"
+    assert main(["generate", "--out", str(out), "--dry-run", "--json"]) == 0
+    plan = json.loads(capsys.readouterr().out)
+    assert plan["sequences"] == 5000 and plan["estimated_bytes"] > 0 and plan["estimated_seconds"] > 0
+    assert plan["actions"] == {"press": 3500, "slip": 500, "twist": 1000}
+    assert not out.exists()
