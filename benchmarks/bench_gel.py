@@ -1,0 +1,112 @@
+"""Time the gel imprint models and the markers at 960x720, ms per frame, on one core.
+
+    .venv/bin/python benchmarks/bench_gel.py [--json] [--repeat N] [--fit]
+
+Cases: a 6 mm sphere pressed with 0.2 N, and a fabric-like texture (0.08 mm woven relief
+over a gentle dome, touching most of the pad) pressed with 1 N, with and without a
+fabric support (50 kPa/mm). Imprint: "pyramid" at the fast (0.5) and balanced (1.0)
+imprint scales, "elastic" at the reference level. Markers: "gaussian" and "elastic"
+on the sphere's and the fabric's imprint with shear and twist. Reports the median of
+--repeat runs, wall-clock and CPU time (CPU time is steadier on a shared machine).
+``--fit`` refits the pyramid law to the elastic model and rewrites assets/imprint_law.toml.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import statistics
+import sys
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+
+from gelsim import indenters  # noqa: E402
+from gelsim.fidelity import get_fidelity  # noqa: E402
+from gelsim.gel import fit_pyramid_law, press, write_law  # noqa: E402
+from gelsim.markers import displace  # noqa: E402
+from gelsim.sensor import load_profile  # noqa: E402
+
+
+def fabric_like(profile, seed: int = 0) -> np.ndarray:
+    """Woven-like relief (0.35 x 0.3 mm, 0.08 mm deep) on a 0.3 mm dome over the pad, mm."""
+    h, w = profile.shape
+    mmpp = profile.image.mm_per_px
+    y = (np.arange(h) - (h - 1) / 2)[:, None] * mmpp
+    x = (np.arange(w) - (w - 1) / 2)[None, :] * mmpp
+    rng = np.random.default_rng(seed)
+    weave = 0.04 * (np.sin(2 * np.pi * x / 0.35) * np.sin(2 * np.pi * y / 0.3) + 1.0)
+    dome = 0.3 * (1.0 - (x * x + y * y) / 150.0)
+    return (weave + dome + 0.005 * rng.standard_normal((h, w))).astype(np.float32)
+
+
+def timed(fn, repeat: int) -> dict:
+    fn()  # warm caches (kernels, tables)
+    wall, cpu = [], []
+    for _ in range(repeat):
+        t0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        wall.append((time.perf_counter() - t0) * 1000)
+        cpu.append((time.process_time() - c0) * 1000)
+    return {"wall_ms": round(statistics.median(wall), 3), "cpu_ms": round(statistics.median(cpu), 3)}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--json", action="store_true", help="print one JSON document")
+    ap.add_argument("--repeat", type=int, default=20, help="runs per fast case (elastic: a quarter, at least 1)")
+    ap.add_argument("--fit", action="store_true", help="refit the pyramid law and rewrite assets/imprint_law.toml")
+    args = ap.parse_args(argv)
+    cv2.setNumThreads(1)
+    if args.fit:
+        res = fit_pyramid_law()
+        write_law(res)
+        print(json.dumps(res, indent=2))
+        return 0
+    prof = load_profile("vitac")
+    sphere = indenters.sphere(6.0, prof, center_mm=(0.8, -0.4))
+    fabric = fabric_like(prof)
+    cases = {"sphere": (sphere, 0.2, None), "fabric": (fabric, 1.0, None), "fabric_supported": (fabric, 1.0, 50.0)}
+    levels = {"pyramid_fast": get_fidelity("fast"), "pyramid_balanced": get_fidelity("balanced"),
+              "elastic_reference": dataclasses.replace(get_fidelity("reference"), imprint_model="elastic")}
+    results: dict = {"resolution": list(prof.shape[::-1]), "imprint": {}, "markers": {},
+                     "load_avg": os.getloadavg()[0]}
+    imprints = {}
+    for lname, fid in levels.items():
+        for cname, (prot, force, ks) in cases.items():
+            rep = max(1, args.repeat // 4) if fid.imprint_model == "elastic" else args.repeat
+            run = lambda: press(prot, prof, fid, force_n=force, support_stiffness_kpa_per_mm=ks)  # noqa: E731
+            r = timed(run, rep)
+            im = run()
+            r.update(indentation_mm=round(im.indentation_mm, 5), contact_area_mm2=round(im.contact_area_mm2, 3),
+                     imprint_scale=fid.imprint_scale)
+            results["imprint"][f"{lname}/{cname}"] = r
+            if lname == "pyramid_balanced":
+                imprints[cname] = im
+            if not args.json:
+                print(f"imprint {lname:18} {cname:17} {r['wall_ms']:9.2f} ms wall {r['cpu_ms']:9.2f} ms cpu  "
+                      f"d={r['indentation_mm']:.4f} mm  A={r['contact_area_mm2']:.2f} mm^2", flush=True)
+    for model in ("gaussian", "elastic"):
+        fid = dataclasses.replace(get_fidelity("balanced"), marker_model=model)
+        for cname in ("sphere", "fabric"):
+            im = imprints[cname]
+            r = timed(lambda: displace(prof, fid, im, shear_mm=(0.1, 0.05), twist_deg=2.0), args.repeat)
+            results["markers"][f"{model}/{cname}"] = r
+            if not args.json:
+                print(f"markers {model:18} {cname:17} {r['wall_ms']:9.2f} ms wall {r['cpu_ms']:9.2f} ms cpu", flush=True)
+    results["load_avg_end"] = os.getloadavg()[0]
+    if args.json:
+        print(json.dumps(results, indent=2))
+    else:
+        print(f"load average {results['load_avg']:.2f} -> {results['load_avg_end']:.2f} (2 cores shared)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,81 @@
+"""`gelsim press`: JSON keys and values, table output, bad input exits 2."""
+import json
+import re
+
+import pytest
+
+from gelsim.cli import main
+from gelsim.gel import hertz
+from gelsim.sensor import SENSORS_DIR, load_profile
+
+KEYS = {"contact_radius_mm", "indentation_mm", "hertz_contact_radius_mm", "hertz_indentation_mm", "force_n", "model"}
+
+
+@pytest.fixture(scope="module")
+def thick_profile(tmp_path_factory):
+    """The vitac sensor with a 20 mm gel: a half-space for millinewton presses."""
+    text = (SENSORS_DIR / "vitac.toml").read_text()
+    text, n = re.subn(r"(?m)^thickness_mm\s*=.*$", "thickness_mm = 20.0", text)
+    assert n == 1
+    path = tmp_path_factory.mktemp("prof") / "thick.toml"
+    path.write_text(text)
+    return path
+
+
+def run_json(capsys, *argv):
+    rc = main(["press", *argv, "--json"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    return json.loads(out)
+
+
+def test_json_keys_and_hertz_values(capsys, thick_profile):
+    rep = run_json(capsys, "--indenter", "sphere", "--diameter-mm", "4", "--force-n", "0.02",
+                   "--profile", str(thick_profile), "--fidelity", "reference", "--resolution-px", "480")
+    assert KEYS <= set(rep)
+    assert rep["model"] == "elastic" and rep["force_n"] == 0.02
+    a, d = hertz(4.0, 0.02, load_profile(thick_profile).gel)
+    assert rep["hertz_contact_radius_mm"] == pytest.approx(a)
+    assert rep["hertz_indentation_mm"] == pytest.approx(d)
+    assert rep["contact_radius_mm"] == pytest.approx(a, rel=0.10)
+    assert rep["indentation_mm"] == pytest.approx(d, rel=0.10)
+    assert rep["bottomed_out"] is False
+
+
+def test_pyramid_and_cylinder(capsys):
+    rep = run_json(capsys, "--force-n", "0.05", "--fidelity", "balanced", "--resolution-px", "320")
+    assert rep["model"] == "pyramid" and rep["indentation_mm"] > 0 and rep["contact_radius_mm"] > 0
+    cyl = run_json(capsys, "--indenter", "cylinder", "--diameter-mm", "3", "--length-mm", "5",
+                   "--force-n", "0.05", "--fidelity", "fast", "--resolution-px", "320")
+    assert cyl["hertz_contact_radius_mm"] is None and cyl["indentation_mm"] > 0
+
+
+def test_mesh_indenter(capsys, tmp_path):
+    trimesh = pytest.importorskip("trimesh")
+    path = tmp_path / "ball.stl"
+    trimesh.creation.icosphere(subdivisions=3, radius=2.0).export(path)
+    rep = run_json(capsys, "--indenter", str(path), "--force-n", "0.05", "--fidelity", "balanced",
+                   "--resolution-px", "320")
+    ref = run_json(capsys, "--indenter", "sphere", "--diameter-mm", "4", "--force-n", "0.05",
+                   "--fidelity", "balanced", "--resolution-px", "320")
+    assert rep["indentation_mm"] == pytest.approx(ref["indentation_mm"], rel=0.05)
+
+
+def test_table_output(capsys):
+    assert main(["press", "--force-n", "0.05", "--fidelity", "fast", "--resolution-px", "320"]) == 0
+    out = capsys.readouterr().out
+    assert "contact radius (mm)" in out and "indentation (mm)" in out and "Hertz" in out
+
+
+@pytest.mark.parametrize("argv", [
+    ["--diameter-mm", "0", "--force-n", "0.1"],
+    ["--diameter-mm", "-2", "--force-n", "0.1"],
+    ["--force-n", "0"],
+    ["--force-n", "-1"],
+    ["--indenter", "/nonexistent/ball.stl", "--force-n", "0.1"],
+    ["--indenter", "pyramid", "--force-n", "0.1"],
+])
+def test_bad_input_exits_2_with_one_line(capsys, argv):
+    assert main(["press", *argv, "--resolution-px", "160"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("gelsim: error:") and "\n" not in err
