@@ -26,6 +26,8 @@ _SNAP_PX = 1e-6
 # Side of the tiles a rotated patch is rendered in: small enough to skip most of the
 # bounding box a 45-degree patch wastes, large enough that per-tile overhead is small.
 _TILE_PX = 256
+# Most sub-samples per pixel side when antialiasing coarse patches (16 per pixel bounds the cost).
+_MAX_SUPERSAMPLE = 4
 # Largest patch, px per side: 8192 covers 80 mm at 0.01 mm/px.
 _MAX_SIDE_PX = 8192
 
@@ -57,7 +59,7 @@ def _surface(fab: Fabric, u: np.ndarray, v: np.ndarray, key: int) -> np.ndarray:
 
 
 def heightfield(fabric: Fabric, *, x0_mm: float, y0_mm: float, width_px: int, height_px: int,
-                mm_per_px: float, seed: int = 0, rotation_deg: float = 0.0) -> np.ndarray:
+                mm_per_px: float, seed: int = 0, rotation_deg: float = 0.0, _antialias: bool = True) -> np.ndarray:
     """Surface height of ``fabric`` in mm above its base plane, float32 ``(height_px, width_px)``.
 
     Pixel ``(i, j)`` samples the sensor-plane point ``(x, y) = (x0_mm + j*mm_per_px,
@@ -66,6 +68,8 @@ def heightfield(fabric: Fabric, *, x0_mm: float, y0_mm: float, width_px: int, he
     ``(u, v) = (x cos t + y sin t, -x sin t + y cos t)``. Heights are >= 0 and peak at about
     ``fabric.relief_mm``. A pure function of the absolute coordinates, the fabric and ``seed``:
     adjacent patches join seamlessly (exactly when their origins are multiples of ``mm_per_px``).
+    At coarse resolutions (physics, 0.1-0.2 mm/px) each pixel is the mean of up to 4 x 4 sub-samples,
+    so that yarn structure finer than the pixels averages out instead of aliasing into false patterns.
     """
     if not (isinstance(width_px, (int, np.integer)) and isinstance(height_px, (int, np.integer))):
         raise GelsimError(f"width_px and height_px must be integers, got {width_px!r} x {height_px!r}")
@@ -75,6 +79,16 @@ def heightfield(fabric: Fabric, *, x0_mm: float, y0_mm: float, width_px: int, he
         raise GelsimError(f"mm_per_px {mm_per_px} must be a positive number; e.g. 0.0197 for the ViTac sensor")
     if not all(math.isfinite(t) for t in (x0_mm, y0_mm, rotation_deg)):
         raise GelsimError("x0_mm, y0_mm and rotation_deg must be finite numbers")
+    k = supersampling(fabric, mm_per_px) if _antialias else 1
+    if k > 1 and max(width_px, height_px) * k <= _MAX_SIDE_PX:
+        # Box-filter k x k sub-samples centred on each pixel, on a grid aligned in absolute coordinates
+        # (so the result is still a pure function of the coordinates).
+        sub = mm_per_px / k
+        off = 0.5 * sub - 0.5 * mm_per_px
+        h = heightfield(fabric, x0_mm=x0_mm + off, y0_mm=y0_mm + off, width_px=width_px * k,
+                        height_px=height_px * k, mm_per_px=sub, seed=seed, rotation_deg=rotation_deg,
+                        _antialias=False)
+        return h.reshape(height_px, k, width_px, k).mean(axis=(1, 3), dtype=F32)
     key = make_key(int(seed), fabric.name, fabric.family)
     j0 = _snap(x0_mm / mm_per_px)
     i0 = _snap(y0_mm / mm_per_px)
@@ -88,6 +102,16 @@ def heightfield(fabric: Fabric, *, x0_mm: float, y0_mm: float, width_px: int, he
     s *= F32(fabric.relief_mm)
     np.maximum(s, 0.0, out=s)
     return s
+
+
+def supersampling(fabric: Fabric, mm_per_px: float) -> int:
+    """Sub-samples per pixel side (1-4): enough for 4 samples per period of the fabric's finest structure
+    (yarn/loop pitch or feature size; fibre fuzz is noise and may alias)."""
+    scales = [v for v in (fabric.warp_pitch_mm, fabric.weft_pitch_mm, fabric.feature_mm) if v is not None]
+    if fabric.family in ("leather", "suede") and fabric.pore_diameter_mm:
+        scales.append(fabric.pore_spacing_mm)
+    finest = min(scales)
+    return int(min(_MAX_SUPERSAMPLE, max(1, math.ceil(4.0 * mm_per_px / finest - 1e-9))))
 
 
 def _rotated(fab: Fabric, j0: float, i0: float, w: int, h: int, mpp: float, theta: float, key: int) -> np.ndarray:

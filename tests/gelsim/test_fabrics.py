@@ -321,3 +321,17 @@ def test_all_fabrics_pairwise_distinct():
     assert ratio[i, j] > 1.0, (CAT[i + 1].name, CAT[j + 1].name, inter[i, j], intra[i], intra[j])
     # and the seed-to-seed distance is not zero for the random families (the test could fail)
     assert all(intra[f.id - 1] > 0 for f in CAT if f.family in RANDOM_FAMILIES)
+
+
+def test_coarse_resolution_is_antialiased_and_still_seamless():
+    f = CAT.by_name("silk habotai")                # 0.10 x 0.11 mm pitch, no fuzz
+    mpp = 0.2                                      # the physics' resolution: two yarns per pixel
+    kw = dict(mm_per_px=mpp, seed=2, rotation_deg=25.0)
+    h = heightfield(f, x0_mm=0.0, y0_mm=0.0, width_px=60, height_px=40, **kw)
+    naive = heightfield(f, x0_mm=0.0, y0_mm=0.0, width_px=60, height_px=40, _antialias=False, **kw)
+    # Point sampling aliases the weave into a false pattern with the full yarn relief; averaging over
+    # the pixel leaves little of a structure two yarns per pixel fine.
+    assert h.std() < 0.3 * naive.std()
+    assert abs(float(h.mean()) - float(naive.mean())) < 0.2 * f.relief_mm
+    right = heightfield(f, x0_mm=30 * mpp, y0_mm=0.0, width_px=30, height_px=40, **kw)
+    np.testing.assert_allclose(h[:, 30:], right, rtol=0, atol=1e-5 * f.relief_mm)
