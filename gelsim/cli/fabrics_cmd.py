@@ -12,7 +12,7 @@ def register(subparsers) -> None:
                               formatter_class=HelpFormatter)
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--catalog", default=None, metavar="PATH",
-                        help="catalog folder or .toml file (default: None = the shipped assets/fabrics/)")
+                        help="catalog folder or .toml file (None: the shipped assets/fabrics/)")
     sub = p.add_subparsers(dest="fabrics_command", metavar="SUBCOMMAND")
     p.set_defaults(handler=lambda args: (p.print_help(), 2)[1])
 
@@ -25,7 +25,8 @@ def register(subparsers) -> None:
     q = sub.add_parser("show", help="hillshade preview of one fabric", formatter_class=HelpFormatter, parents=[common],
                        description="Write a shaded-relief PNG of one fabric, with its name and a mm scale bar.")
     q.add_argument("id", type=int, help="fabric id (see `gelsim fabrics list`)")
-    q.add_argument("--out", required=True, metavar="FILE.png", help="output PNG file (required)")
+    q.add_argument("--out", required=True, default=argparse.SUPPRESS, metavar="FILE.png",
+                   help="output PNG file (required)")
     q.add_argument("--size-mm", type=float, default=10.0, help="side of the square patch shown, mm")
     q.add_argument("--mm-per-px", type=float, default=0.01, help="resolution, mm per pixel")
     q.add_argument("--seed", type=int, default=0, help="random seed of the fabric's irregularities (integer)")
@@ -34,7 +35,8 @@ def register(subparsers) -> None:
 
     q = sub.add_parser("sheet", help="contact sheet of every fabric", formatter_class=HelpFormatter, parents=[common],
                        description="Write one PNG with a labelled hillshade tile per fabric.")
-    q.add_argument("--out", required=True, metavar="FILE.png", help="output PNG file (required)")
+    q.add_argument("--out", required=True, default=argparse.SUPPRESS, metavar="FILE.png",
+                   help="output PNG file (required)")
     q.add_argument("--tile-mm", type=float, default=5.0, help="side of each fabric's tile, mm")
     q.add_argument("--mm-per-px", type=float, default=0.025, help="resolution of the tiles, mm per pixel")
     q.add_argument("--columns", type=int, default=10, help="tiles per row (count)")
