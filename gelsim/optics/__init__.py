@@ -114,6 +114,12 @@ class Renderer:
 
     def render_float(self, depth_mm: np.ndarray | None, markers=None) -> np.ndarray:
         """The noiseless, unquantised frame: float32 ``(H, W, 3)`` DN (may leave 0-255 before saturation)."""
+        frame = self._compose(depth_mm, markers)
+        return frame.copy() if frame is self._bg else frame
+
+    def _compose(self, depth_mm, markers) -> np.ndarray:
+        """Like :meth:`render_float`, but returns the cached background itself (not a copy) when
+        nothing changes it: callers must not modify the result."""
         depth = check_depth(depth_mm, self.profile.shape)
         corners = marker_corners(markers) if self.profile.markers.enabled else None
         s = self.supersample
@@ -124,12 +130,13 @@ class Renderer:
             if corners is not None:
                 # pixel centres at integers at both resolutions: x_fine = s (x + 1/2) - 1/2
                 corners = s * (corners + 0.5) - 0.5
+        res = None if depth is None else self._shader.delta(depth, margin_px=blur_radius_px(self._blur_fine))
+        if res is None and corners is None:
+            return self._bg
         frame = self._bg_fine.copy()
-        if depth is not None:
-            res = self._shader.delta(depth, margin_px=blur_radius_px(self._blur_fine))
-            if res is not None:
-                roi, delta = res
-                frame[roi] += gaussian_blur(delta, self._blur_fine)
+        if res is not None:
+            roi, delta = res
+            frame[roi] += gaussian_blur(delta, self._blur_fine)
         if corners is not None:
             darken_markers(frame, corners, self.profile.markers.darkness, self._blur_fine)
         if s > 1:
@@ -145,7 +152,7 @@ class Renderer:
         (x, y) px, such an array, or None; ``seed``: picks this frame's noise
         (same seed, same frame); ``noise``: False for a noiseless frame.
         """
-        frame = self.render_float(depth_mm, markers)
+        frame = self._compose(depth_mm, markers)
         if noise and self._noise.active:
             return self._noise.apply(frame, seed)
         return to_uint8(frame)
