@@ -1,0 +1,216 @@
+"""The ``stam`` command line: a thin layer over stam's Python API.
+
+Commands: info, onsets, pretrain, train, evaluate, experiment, explain. Bad input prints
+one line ``stam: error: <problem>; <fix>`` and exits with status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from gelsim.cli import HelpFormatter, print_json
+from gelsim.errors import GelsimError
+
+from . import __version__
+
+
+def _info(args) -> int:
+    from . import models
+
+    opts = {"width": args.width, "image_size": args.image_size}
+    n = models.parameter_count(args.model, args.frames, args.classes, **opts)
+    paper_setting = args.width == 1.0 and args.image_size == 224 and args.classes == 100
+    paper = models.PAPER_PARAMS.get(args.model) if paper_setting and (args.model == "cnn" or args.frames == 2) else None
+    res = {"model": args.model, "frames": args.frames, "width": args.width, "image_size_px": args.image_size,
+           "num_classes": args.classes, "params": n, "params_m": round(n / 1e6, 2),
+           "paper_params_m": None if paper is None else paper / 1e6}
+    if args.readings:
+        res["paper_readings"] = models.paper_readings()
+    if args.json:
+        print_json(res)
+    else:
+        print(f"{args.model}, n={args.frames}, width {args.width}, {args.image_size} px, {args.classes} classes: "
+              f"{n:,} parameters ({n / 1e6:.2f} M)"
+              + (f"; paper: {paper / 1e6:.1f} M" if paper else ""))
+        for r in res.get("paper_readings", []):
+            print(f"  {r['params_m']:7.2f} M  {r['reading']}")
+    return 0
+
+
+def _onsets(args) -> int:
+    from .data import TactileDataset
+
+    res = TactileDataset(args.data).onset_agreement(args.image_size, args.threshold)
+    if args.json:
+        print_json(res)
+    else:
+        print(f"onset detection (threshold {args.threshold} grey levels): exact {res['exact']}/{res['sequences']}, "
+              f"within one frame {res['within_1']}, not detected {res['not_detected']}")
+    return 0
+
+
+def _pretrain(args) -> int:
+    from .train import pretrain
+
+    res = pretrain(args.data, args.out, width=args.width, image_size=args.image_size, epochs=args.epochs,
+                   batch_size=args.batch_size, lr=args.lr, seed=args.seed, contact_only=not args.all_frames,
+                   device=args.device, progress=not args.quiet, log=None if args.json or args.quiet else print)
+    if args.json:
+        print_json(res)
+    else:
+        print(f"backbone: {res['path']} (validation frame accuracy {res['val_acc']:.3f})")
+    return 0
+
+
+def _train(args) -> int:
+    from .train import load_config, train
+
+    overrides = {"data": args.data, "out": args.out, "model": args.model, "frames": args.frames,
+                 "start": args.start, "epochs": args.epochs, "seed": args.seed, "pretrained": args.pretrained}
+    if args.quiet or args.json:
+        overrides["progress"] = False
+    cfg = load_config(args.config, overrides, args.set)
+    res = train(cfg, resume=args.resume, log=None if args.json or args.quiet else print)
+    if args.json:
+        print_json(res)
+    else:
+        print(f"best validation accuracy {res['best_val_acc']:.3f} at epoch {res['best_epoch']}: {res['best']}")
+    return 0
+
+
+def _evaluate(args) -> int:
+    from .evaluate import evaluate
+
+    res = evaluate(args.checkpoint, args.data, args.split, out=args.out, device=args.device)
+    if args.json:
+        print_json(res)
+    else:
+        print(f"{res['split']} accuracy {res['accuracy']:.4f} ({res['count']} windows), mean per-class "
+              f"{res['mean_class_accuracy']:.4f}; confusion matrix: {res['confusion_png']}")
+    return 0
+
+
+def _experiment(args) -> int:
+    from .experiment import run_experiment
+
+    res = run_experiment(args.data, args.out, args.preset, args.seeds, args.models, args.frames, args.settings,
+                         log=None if args.json else print)
+    if args.json:
+        print_json({k: v for k, v in res.items() if k != "cells"} | {"cells": len(res["cells"])})
+    else:
+        for k in ("table1", "table2"):
+            if k in res:
+                print(open(res[k]).read())
+        print(f"plot: {res['plot']}")
+    return 0
+
+
+def _explain(args) -> int:
+    from .explain import explain
+
+    res = explain(args.checkpoint, args.sequence, args.out, args.data, args.split)
+    if args.json:
+        print_json(res)
+    else:
+        print("\n".join(res["files"]))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .data import DEFAULT_ONSET_THRESHOLD
+    from .models import MODEL_NAMES
+
+    p = argparse.ArgumentParser(prog="stam", formatter_class=HelpFormatter,
+                                description="STAM tactile texture recognition (Cao et al., IROS 2020) on gelsim datasets.")
+    p.add_argument("--version", action="version", version=f"stam {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    def cmd(name, handler, help_):
+        s = sub.add_parser(name, help=help_, description=help_, formatter_class=HelpFormatter)
+        s.set_defaults(handler=handler)
+        s.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+        return s
+
+    s = cmd("info", _info, "parameter count of a model (beside the paper's figure at its setting)")
+    s.add_argument("--model", choices=MODEL_NAMES, required=True, help="model name")
+    s.add_argument("--frames", type=int, default=2, help="n, frames per window")
+    s.add_argument("--width", type=float, default=1.0, help="AlexNet channel multiplier (1.0 = full)")
+    s.add_argument("--image-size", type=int, default=224, help="input side in px")
+    s.add_argument("--classes", type=int, default=100, help="number of fabric classes")
+    s.add_argument("--readings", action="store_true", help="also list the counts of several readings of the paper")
+
+    s = cmd("onsets", _onsets, "how often the detected contact onset matches the manifest's contact_onset")
+    s.add_argument("--data", required=True, help="dataset directory (gelsim generate --out)")
+    s.add_argument("--threshold", type=float, default=DEFAULT_ONSET_THRESHOLD, help="contact score threshold, grey levels 0-255")
+    s.add_argument("--image-size", type=int, default=128, help="px, size of the frame cache filled on the way")
+
+    s = cmd("pretrain", _pretrain, "pretrain the AlexNet backbone on single training frames (stand-in for ImageNet)")
+    s.add_argument("--data", required=True, help="dataset directory")
+    s.add_argument("--out", required=True, help="output directory (writes backbone.pt)")
+    s.add_argument("--width", type=float, default=1.0, help="AlexNet channel multiplier")
+    s.add_argument("--image-size", type=int, default=224, help="input side in px")
+    s.add_argument("--epochs", type=int, default=10, help="epochs")
+    s.add_argument("--batch-size", type=int, default=64, help="frames per step")
+    s.add_argument("--lr", type=float, default=0.01, help="SGD learning rate (momentum 0.9, cosine decay)")
+    s.add_argument("--seed", type=int, default=0, help="random seed")
+    s.add_argument("--all-frames", action="store_true", help="also use frames before the detected contact")
+    s.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    s.add_argument("--quiet", action="store_true", help="no progress output")
+
+    s = cmd("train", _train, "train one model (config file plus overrides; writes config.json, log.csv, last.pt, best.pt)")
+    s.add_argument("--config", help="TOML config (keys of stam.train.TrainConfig; see stam/configs/default.toml)")
+    s.add_argument("--data", help="dataset directory")
+    s.add_argument("--out", help="run directory")
+    s.add_argument("--model", choices=MODEL_NAMES, help="model (default from config, else stam)")
+    s.add_argument("--frames", type=int, help="n, frames per window (default from config, else 2)")
+    s.add_argument("--start", choices=("contact", "zero"), help="window start: first contact frame (clean) or frame 0 (noisy)")
+    s.add_argument("--epochs", type=int, help="epochs (default from config, else 30)")
+    s.add_argument("--seed", type=int, help="random seed (default from config, else 0)")
+    s.add_argument("--pretrained", help="backbone.pt from `stam pretrain` (default: random init)")
+    s.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override any config key (repeatable)")
+    s.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    s.add_argument("--quiet", action="store_true", help="no progress output")
+
+    s = cmd("evaluate", _evaluate, "accuracy, per-class accuracy and confusion matrix (PNG) of a checkpoint")
+    s.add_argument("--checkpoint", required=True, help="best.pt or last.pt of a run")
+    s.add_argument("--data", help="dataset directory (default: the one the run was trained on)")
+    s.add_argument("--split", choices=("train", "val", "test"), default="test", help="split to evaluate")
+    s.add_argument("--out", help="directory for eval-<split>.json and confusion-<split>.png (default: the run's)")
+    s.add_argument("--device", default="auto", help="auto, cpu or cuda")
+
+    s = cmd("experiment", _experiment, "the Tables I/II sweep: 3 models x n = 2..7 x clean/noisy x seeds (resumable)")
+    s.add_argument("--data", required=True, help="dataset directory")
+    s.add_argument("--out", required=True, help="output directory")
+    s.add_argument("--preset", default="cpu", help="cpu (2 CPU cores), paper (GPU), or a .toml path")
+    s.add_argument("--seeds", type=int, help="seeds per cell (default from the preset: cpu 3, paper 1)")
+    s.add_argument("--models", nargs="+", choices=MODEL_NAMES, help="subset of models (default all)")
+    s.add_argument("--frames", nargs="+", type=int, help="subset of n (default 2..7)")
+    s.add_argument("--settings", nargs="+", choices=("clean", "noisy"), help="subset of settings (default both)")
+
+    s = cmd("explain", _explain, "Grad-CAM per frame and STAM's temporal attention map for one window (PNG)")
+    s.add_argument("--checkpoint", action="append", required=True, help="best.pt of a run (repeatable: cnn, cnn_sa, stam)")
+    s.add_argument("--data", help="dataset directory (default: the one the first run was trained on)")
+    s.add_argument("--sequence", help="sequence id (default: the split's first)")
+    s.add_argument("--split", choices=("train", "val", "test"), default="test", help="split the sequence is taken from")
+    s.add_argument("--out", default=".", help="output directory for gradcam.png and temporal.png")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "handler", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.handler(args) or 0)
+    except GelsimError as e:
+        print(f"stam: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("stam: interrupted; rerun the same command (train: with --resume) to continue", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,55 @@
+import pytest
+import torch
+
+from stam.synthetic import make_synthetic_dataset
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _one_thread():
+    # Tiny tensors on a shared 2-core machine: one thread avoids spin contention.
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+@pytest.fixture(scope="session")
+def synth(tmp_path_factory):
+    """4 fabrics x 20 sequences x 10 frames at 96 x 72 px, H.264 (splits 14/4/2 per fabric)."""
+    return make_synthetic_dataset(tmp_path_factory.mktemp("synth"), num_fabrics=4, seqs_per_fabric=20,
+                                  num_frames=10, size=(96, 72), seed=1)
+
+
+TINY_PRESET = """
+[pretrain]
+width = 0.25
+image_size = 96
+epochs = 2
+batch_size = 32
+lr = 0.01
+[train]
+image_size = 96
+width = 0.25
+freeze_backbone = true
+epochs = 3
+batch_size = 16
+optimizer = "adam"
+lr = 0.002
+progress = false
+[sweep]
+frames = [2, 3]
+settings = ["clean", "noisy"]
+seeds = 1
+"""
+
+
+@pytest.fixture(scope="session")
+def tiny_experiment(synth, tmp_path_factory):
+    from stam.experiment import run_experiment
+
+    d = tmp_path_factory.mktemp("exp")
+    preset = d / "tiny.toml"
+    preset.write_text(TINY_PRESET)
+    out = d / "out"
+    res = run_experiment(str(synth), out, str(preset), log=None)
+    return {"out": out, "preset": preset, "result": res, "data": synth}

@@ -1,0 +1,142 @@
+import numpy as np
+import pytest
+import torch
+
+from gelsim.errors import GelsimError
+from stam import models
+from stam.models import SpatialAttention, TemporalAttention, build
+
+
+def _conv2d_direct(x, weight, bias):
+    """x: (Cin, H, W), weight (Cout, Cin, k, k), zero padding k//2, stride 1, by loops."""
+    cin, h, w = x.shape
+    cout, _, k, _ = weight.shape
+    p = k // 2
+    xp = np.zeros((cin, h + 2 * p, w + 2 * p))
+    xp[:, p:p + h, p:p + w] = x
+    out = np.zeros((cout, h, w))
+    for o in range(cout):
+        for i in range(h):
+            for j in range(w):
+                out[o, i, j] = (xp[:, i:i + k, j:j + k] * weight[o]).sum() + (bias[o] if bias is not None else 0)
+    return out
+
+
+def test_spatial_attention_matches_eq1():
+    torch.manual_seed(0)
+    sa = SpatialAttention().double()
+    x = torch.randn(2, 5, 6, 7, dtype=torch.float64)
+    y = sa(x).detach().numpy()
+    w, b = sa.conv.weight.detach().numpy(), sa.conv.bias.detach().numpy()
+    for n in range(2):
+        xn = x[n].numpy()
+        desc = np.stack([xn.max(0), xn.mean(0)])  # [MaxPool; AvgPool] over channels
+        a = 1 / (1 + np.exp(-_conv2d_direct(desc, w, b)))  # (1, H, W)
+        np.testing.assert_allclose(sa.last_map[n].numpy(), a, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(y[n], a * xn, rtol=1e-10, atol=1e-12)
+    assert y.shape == (2, 5, 6, 7)
+
+
+def _temporal_direct(x, ta, gain):
+    """Eq. 2-3 by explicit loops over the m = n*h*w positions of one window x (n, C, h, w)."""
+    n, c, h, w = x.shape
+    pos = [x[t, :, r, s] for t in range(n) for r in range(h) for s in range(w)]  # m vectors of C
+    lin = lambda conv, v: conv.weight.detach().numpy()[:, :, 0, 0, 0] @ v + conv.bias.detach().numpy()
+    q = [lin(ta.q, p) for p in pos]
+    k = [lin(ta.k, p) for p in pos]
+    v = [lin(ta.v, p) for p in pos]
+    m = len(pos)
+    a = np.zeros((m, m))
+    out = []
+    for j in range(m):
+        s = np.array([q[i] @ k[j] for i in range(m)])  # s_ij for all i
+        a[j] = np.exp(s) / np.exp(s).sum()
+        out.append(gain * sum(a[j, i] * v[i] for i in range(m)) + pos[j])
+    y = np.zeros_like(x)
+    idx = 0
+    for t in range(n):
+        for r in range(h):
+            for s_ in range(w):
+                y[t, :, r, s_] = out[idx]
+                idx += 1
+    return y, a
+
+
+@pytest.mark.parametrize("gain_mode", ["fixed", "learned"])
+def test_temporal_attention_matches_eq2_eq3(gain_mode):
+    torch.manual_seed(1)
+    ta = TemporalAttention(6, qk_reduction=2, residual_gain=gain_mode).double()
+    gain = 1.0
+    if gain_mode == "learned":
+        assert ta.gamma.item() == 0.0
+        with torch.no_grad():
+            ta.gamma.fill_(0.7)
+        gain = 0.7
+    x = torch.randn(2, 3, 6, 2, 3, dtype=torch.float64)
+    y, a = ta(x, return_map=True)
+    assert y.shape == x.shape and a.shape == (2, 18, 18)
+    np.testing.assert_allclose(a.detach().sum(-1).numpy(), 1.0, rtol=1e-12)
+    for b in range(2):
+        y_ref, a_ref = _temporal_direct(x[b].numpy(), ta, gain)
+        np.testing.assert_allclose(a[b].detach().numpy(), a_ref, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(y[b].detach().numpy(), y_ref, rtol=1e-9, atol=1e-12)
+
+
+def test_temporal_attention_starts_as_identity_with_learned_gain():
+    ta = TemporalAttention(8)
+    x = torch.randn(1, 4, 8, 3, 3)
+    assert torch.equal(ta(x), x)
+
+
+def test_temporal_attention_is_frame_permutation_equivariant():
+    torch.manual_seed(2)
+    ta = TemporalAttention(8, residual_gain="fixed")
+    x = torch.randn(1, 4, 8, 2, 2)
+    perm = torch.tensor([2, 0, 3, 1])
+    torch.testing.assert_close(ta(x)[:, perm], ta(x[:, perm]), rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", models.MODEL_NAMES)
+def test_output_shapes_for_n_2_to_7(name):
+    torch.manual_seed(0)
+    for n in range(2, 8):
+        m = build(name, n, 5, width=0.125, image_size=96).eval()
+        with torch.no_grad():
+            assert m(torch.randn(2, n, 3, 96, 96)).shape == (2, 5)
+        with pytest.raises(GelsimError):
+            m(torch.randn(2, n + 1, 3, 96, 96))
+
+
+@pytest.mark.parametrize("name", models.MODEL_NAMES)
+@pytest.mark.parametrize("options", [{}, {"fusion": "mean_features", "combine": "concat", "sa_batchnorm": True}])
+def test_gradients_reach_every_parameter(name, options):
+    torch.manual_seed(0)
+    m = build(name, 3, 4, width=0.125, image_size=96, dropout=0.0, **options)
+    if m.temporal is not None:  # at gamma = 0 no gradient reaches q and k, by design: move off it
+        with torch.no_grad():
+            for t in m.temporal:
+                t.gamma.fill_(0.5)
+    m.train()
+    loss = torch.nn.functional.cross_entropy(m(torch.randn(3, 3, 3, 96, 96)), torch.tensor([0, 1, 2]))
+    loss.backward()
+    missing = [k for k, p in m.named_parameters() if p.grad is None or p.grad.abs().sum() == 0]
+    assert not missing, missing
+
+
+def test_parameter_counts_at_paper_setting():
+    cnn = models.parameter_count("cnn", 2, 100)
+    assert cnn == 57_413_540  # AlexNet with a 100-class head: the paper's 57.4 M
+    assert round(cnn / 1e6, 1) == models.PAPER_PARAMS["cnn"] / 1e6
+    assert models.parameter_count("cnn", 7, 100) == cnn  # parameter-free fusion
+    assert models.parameter_count("cnn_sa", 2, 100) == cnn + 2 * 49 + 1
+    per_module = 2 * (256 * 32 + 32) + (256 * 256 + 256) + 1
+    assert models.parameter_count("stam", 2, 100) == cnn + 99 + 10 * per_module
+    readings = models.paper_readings()
+    assert min(abs(r["params"] - 68.8e6) for r in readings) < 0.05e6
+
+
+def test_build_rejects_bad_options():
+    for kwargs in ({"name": "vgg"}, {"fusion": "sum"}, {"combine": "max"}):
+        args = {"name": "stam", "n_frames": 2, "num_classes": 3, "width": 0.125, "image_size": 96} | kwargs
+        with pytest.raises(GelsimError):
+            build(**args)

@@ -1,0 +1,65 @@
+import csv
+import json
+
+import pytest
+import torch
+
+from stam import cli
+from stam.evaluate import evaluate
+from stam.train import load_checkpoint, load_config, train
+
+
+def _cfg(synth, out, **kw):
+    base = {"data": str(synth), "out": str(out), "model": "stam", "frames": 3, "image_size": 96, "width": 0.25,
+            "epochs": 2, "batch_size": 16, "optimizer": "adam", "lr": 0.002, "lr_schedule": "constant",
+            "progress": False}
+    return load_config(None, base | kw)
+
+
+def test_tiny_end_to_end_training_beats_chance(synth, tmp_path):
+    # Whole pipeline (video -> cache -> windows -> AlexNet + SA + temporal attention -> head), backbone
+    # trained end to end from scratch; 4 classes, chance 25 %.
+    torch.manual_seed(0)
+    res = train(_cfg(synth, tmp_path / "run", epochs=12, width=0.25, dropout=0.0), log=None)
+    ev = evaluate(res["best"], split="test")
+    val = evaluate(res["best"], split="val", out=tmp_path / "ev")
+    acc = (ev["accuracy"] * ev["count"] + val["accuracy"] * val["count"]) / (ev["count"] + val["count"])
+    assert acc >= 0.6, (ev["accuracy"], val["accuracy"])
+    assert (tmp_path / "ev" / "confusion-val.png").stat().st_size > 1000
+    assert sum(sum(r) for r in val["confusion"]) == val["count"] == 16
+
+
+def test_resume_continues_from_checkpoint(synth, tmp_path):
+    kw = {"model": "cnn_sa", "freeze_backbone": True, "seed": 3}
+    straight = train(_cfg(synth, tmp_path / "a", epochs=4, **kw), log=None)
+    train(_cfg(synth, tmp_path / "b", epochs=2, **kw), log=None)
+    resumed = train(_cfg(synth, tmp_path / "b", epochs=4, **kw), resume=True, log=None)
+    a, b = load_checkpoint(straight["last"]), load_checkpoint(resumed["last"])
+    assert a["epoch"] == b["epoch"] == 4
+    for k in a["model"]:
+        torch.testing.assert_close(a["model"][k], b["model"][k], rtol=1e-5, atol=1e-6)
+    with open(tmp_path / "b" / "log.csv") as f:
+        assert [int(r["epoch"]) for r in csv.DictReader(f)] == [1, 2, 3, 4]
+    assert json.loads((tmp_path / "b" / "config.json").read_text())["epochs"] == 4
+    with pytest.raises(Exception, match="different config"):
+        train(_cfg(synth, tmp_path / "b", epochs=5, lr=0.1, **kw), resume=True, log=None)
+
+
+def test_config_errors_exit_2(synth, tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('model = "stam"\nlearning_rate = 0.1\n')
+    assert cli.main(["train", "--config", str(bad), "--data", str(synth), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "unknown config key 'learning_rate'" in err and "\n" not in err
+    assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "o"), "--set", "epochs=two"]) == 2
+    assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "o"), "--frames", "11",
+                     "--set", "image_size=96", "--set", "width=0.25", "--quiet"]) == 2
+    assert "outside" in capsys.readouterr().err
+    assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "o2"), "--resume"]) == 2
+
+
+def test_checkpoints_load_weights_only(synth, tmp_path):
+    res = train(_cfg(synth, tmp_path / "r", epochs=1, freeze_backbone=True), log=None)
+    for name in ("best", "last"):
+        ck = torch.load(res[name], weights_only=True)
+        assert ck["config"]["model"] == "stam" and "model" in ck
