@@ -129,8 +129,9 @@ def background_float(profile, maps: list[LightMaps], seed: int) -> np.ndarray:
     flat-gel irradiance (so each LED's colour is brighter near its own rim),
     plus a smooth random illumination field; then vignetting. Without
     vignetting the mean over the image is ``rgb_dn``. A ``background.image``
-    replaces all but the vignetting (a real flat frame already contains it, so
-    its vignetting should be 0).
+    (a real flat frame) replaces all of it, vignetting included, since the
+    frame already contains its sensor's vignetting; ``camera.vignetting`` then
+    still shapes the shading change.
     """
     bg_spec = profile.background
     if bg_spec.image:

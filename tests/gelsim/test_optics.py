@@ -346,3 +346,20 @@ def test_convenience_render_and_backends(small):
     assert img.dtype == np.uint8 and img.shape == (*small.shape, 3)
     np.testing.assert_array_equal(img, Renderer(small, seed=2).render(d, seed=2))
     assert available_backends()[0] == "fast"
+
+
+def test_background_image_replaces_parametric_field(tmp_path, small):
+    """A profile's background PNG (path relative to the profile file) becomes the flat gel."""
+    h, w = small.shape
+    rng = np.random.default_rng(0)
+    img = cv2.GaussianBlur(rng.integers(60, 200, (h // 2, w // 2, 3)).astype(np.uint8), (0, 0), 3)
+    cv2.imwrite(str(tmp_path / "flat.png"), img[..., ::-1])         # stored as RGB -> BGR on disk
+    p = dataclasses.replace(replace(small, background={"image": "flat.png"}, camera={"vignetting": 0.0,
+                                                                                      "blur_sigma_px": 0.0}),
+                            source=str(tmp_path / "sensor.toml"))
+    bg = Renderer(p).background()
+    want = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    np.testing.assert_array_equal(bg, want)
+    missing = dataclasses.replace(p, background=dataclasses.replace(p.background, image="nope.png"))
+    with pytest.raises(GelsimError, match="nope.png"):
+        Renderer(missing)
