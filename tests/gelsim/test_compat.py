@@ -98,3 +98,18 @@ def test_import_pyrender_applies_shims_and_colours_stay_bright():
     lines = out.stdout.split()
     assert lines[0] in compat.PLATFORMS
     assert float(lines[1]) == pytest.approx(1 / 255) and float(lines[2]) == 1.0
+
+
+def test_broken_gl_platform_gives_fast_only_and_one_line_error():
+    """With an unusable GL platform, only the fast backend is offered and pyrender fails with one clear line."""
+    code = ("from gelsim.optics import Renderer, available_backends\n"
+            "from gelsim.sensor import load_profile\n"
+            "from gelsim.errors import GelsimError\n"
+            "print(available_backends())\n"
+            "try:\n    Renderer(load_profile('vitac').with_resolution(64), 'pyrender')\n"
+            "except GelsimError as e:\n    print('ERR', e)\n")
+    out = _run(code, env_platform="bogus")
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0] == "['fast']"
+    assert lines[1].startswith("ERR no headless OpenGL") and "libegl1" in lines[1] and len(lines) == 2
