@@ -2,9 +2,26 @@
 
 :func:`render_sequence` strings the stages together for one (fabric, motion)
 pair and yields frames one at a time (constant memory), then returns the
-per-frame labels. Work is skipped where a frame does not need it: frames out of
-contact reuse the flat-gel imprint (no imprint or marker solve), and slip/twist
-terms are only evaluated when the contact simulation reports shear or torsion.
+per-frame labels.
+
+Shortcuts (``shortcuts=True``, the default) skip work a frame does not need; each
+gives the full computation's result within the tolerance stated here, checked by
+``tests/gelsim/test_shortcuts.py``, and ``gelsim bench`` reports what they save:
+
+* frames out of contact reuse the flat gel: no protrusion sample, no imprint, no
+  marker solve, the cached background (exact);
+* the imprint, the marker fields and the shading are computed over the touched
+  region only (``press(window="touched")``; the pyramid model is exact, the elastic
+  model cuts its 1/r tail 3 gel thicknesses from the contact: < 2% of the peak depth);
+* shear and twist terms whose largest marker displacement is below
+  :data:`NEGLIGIBLE_PX` are dropped (press sequences: the hand's tremor twists the gel
+  by about 0.001 degree); markers then move by < NEGLIGIBLE_PX;
+* outputs nobody asked for (``outputs``) are not computed: without ``"frames"`` no
+  optics; without ``"frames"`` and ``"markers"`` no marker solve; with none of the
+  three, no imprint either (exact: the labels that are computed are unchanged).
+
+``shortcuts=False`` runs every stage on every frame over the full frame (for tests
+and for measuring the savings).
 """
 from __future__ import annotations
 
@@ -12,12 +29,13 @@ import math
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Collection, Iterator
 
 import cv2
 import numpy as np
 
 from .contact import ContactFrames, Surface, simulate
+from .errors import GelsimError
 from .fabrics import Fabric, heightfield
 from .fidelity import Fidelity
 from .gel import press
@@ -29,6 +47,12 @@ from .sensor import SensorProfile
 # Physics sees the fabric at this coarse cell size; finer texture is the gel model's
 # business (REFERENCES: hfield contacts are capped at 50 per pair, so finer cells buy nothing).
 PHYSICS_MM_PER_PX = 0.2
+# Shear and twist terms that move no marker by more than this are skipped, px. A marker edge
+# moving by 0.005 px changes its anti-aliased coverage by 0.5% of a pixel: at most about
+# 0.6 DN (darkness 0.85 of a ~140 DN gel), below half a quantisation step.
+NEGLIGIBLE_PX = 0.005
+# What render_sequence can produce besides the contact labels (always computed).
+OUTPUTS = frozenset({"frames", "imprint", "markers"})
 
 
 @dataclass
@@ -100,43 +124,92 @@ class SequenceOutput:
     timings_s: dict[str, float]
 
 
-def render_sequence(fabric: Fabric, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *,
+def _negligible_px(shear_mm, twist_deg: float, profile: SensorProfile) -> tuple[bool, bool]:
+    """Whether the shear and the twist each move every marker by less than NEGLIGIBLE_PX.
+
+    The twist's lever arm is bounded by the image's diagonal (the centroid lies inside)."""
+    mmpp = profile.image.mm_per_px
+    shear_px = math.hypot(float(shear_mm[0]), float(shear_mm[1])) / mmpp
+    h, w = profile.shape
+    twist_px = abs(math.radians(float(twist_deg))) * math.hypot(w, h)
+    return shear_px < NEGLIGIBLE_PX, twist_px < NEGLIGIBLE_PX
+
+
+def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *,
                     seed: int, renderer: Renderer | None = None, sensor_seed: int = 0,
-                    out: SequenceOutput | None = None) -> Iterator[np.ndarray]:
+                    out: SequenceOutput | None = None, shortcuts: bool = True,
+                    outputs: Collection[str] = OUTPUTS, contact: ContactFrames | None = None,
+                    surface: Surface | None = None, patch: FabricPatch | None = None,
+                    support_stiffness_kpa_per_mm: float | None = None) -> Iterator[np.ndarray | None]:
     """Yield the ``uint8 (H, W, 3)`` frames of one sequence; fills ``out`` with labels and timings.
 
     ``seed`` drives everything random in this sequence (fabric irregularity phase, camera
     noise); ``sensor_seed`` fixes what belongs to the physical sensor and stays the same
     across a dataset (background illumination field, printed marker jitter).
+
+    ``shortcuts``: skip work frames do not need (see the module docstring); False computes
+    everything on every frame. ``outputs``: any of ``"frames"``, ``"imprint"`` (labels
+    ``indentation_mm``, ``contact_area_mm2``) and ``"markers"`` (``markers_xy_px``,
+    ``markers_rest_px``); without ``"frames"`` the generator yields None per frame. The
+    contact labels are always computed. ``contact``: a finished contact simulation of this
+    motion to reuse (no physics run; e.g. to compare fidelity levels on the same contact).
+    ``surface`` and ``patch``: the physics heightfield and the image-resolution patch of an
+    object other than a catalog fabric (then ``fabric`` may be None and the object is rigid
+    unless ``support_stiffness_kpa_per_mm`` is given).
     """
+    outputs = frozenset(outputs)
+    if not outputs <= OUTPUTS:
+        raise GelsimError(f"unknown outputs {sorted(outputs - OUTPUTS)}; choose from {sorted(OUTPUTS)}")
+    if fabric is None and (patch is None or (surface is None and contact is None)):
+        raise GelsimError("render_sequence without a fabric needs patch= and surface= (or contact=); "
+                          "pass a catalog fabric or both heightfields")
+    if contact is not None and len(contact.normal_force_n) != motion.num_frames:
+        raise GelsimError(f"contact has {len(contact.normal_force_n)} frames, the motion {motion.num_frames}; "
+                          "simulate this motion")
+    want_frames = "frames" in outputs
+    want_markers = want_frames or "markers" in outputs
+    want_imprint = want_markers or "imprint" in outputs
     timer = StageTimer()
     t = time.perf_counter()
-    renderer = renderer or Renderer(profile, fidelity.render_backend, supersample=fidelity.supersample,
-                                    seed=sensor_seed)
-    surface = Surface.from_fabric(fabric, motion, profile, mm_per_px=PHYSICS_MM_PER_PX, seed=seed)
-    t = timer.add("fabric", t)
-    contact: ContactFrames = simulate(motion, surface, profile, fidelity)
-    t = timer.add("physics", t)
-    patch = FabricPatch.for_motion(fabric, motion, profile, profile.image.mm_per_px, seed)
-    support = fabric.compressive_modulus_kpa / fabric.thickness_mm
+    if want_frames:
+        renderer = renderer or Renderer(profile, fidelity.render_backend, supersample=fidelity.supersample,
+                                        seed=sensor_seed)
+    if contact is None:
+        if surface is None:
+            surface = Surface.from_fabric(fabric, motion, profile, mm_per_px=PHYSICS_MM_PER_PX, seed=seed)
+        t = timer.add("fabric", t)
+        contact = simulate(motion, surface, profile, fidelity)
+        t = timer.add("physics", t)
+    if fabric is not None:
+        support = fabric.compressive_modulus_kpa / fabric.thickness_mm
+    else:
+        support = support_stiffness_kpa_per_mm
+    # The image-resolution patch is the costliest fabric step: built only if some frame presses.
+    touches = bool(np.any(contact.in_contact & (contact.normal_force_n > 0)))
+    if patch is None and want_imprint and (touches or not shortcuts):
+        patch = FabricPatch.for_motion(fabric, motion, profile, profile.image.mm_per_px, seed)
     t = timer.add("fabric", t)
 
-    rest = marker_grid(profile, seed=sensor_seed) if profile.markers.enabled else None
-    flat_markers = rest_markers(profile, seed=sensor_seed) if profile.markers.enabled else None
+    markers_on = profile.markers.enabled and want_markers
+    rest = marker_grid(profile, seed=sensor_seed) if markers_on else None
+    flat_markers = rest_markers(profile, seed=sensor_seed) if markers_on else None
     rng = np.random.default_rng(seed)
     T = motion.num_frames
     n_markers = 0 if rest is None else len(rest)
     markers_xy = np.zeros((T, n_markers, 2), np.float32)
     indentation = np.zeros(T, np.float32)
     area = np.zeros(T, np.float32)
+    window = "touched" if shortcuts else "full"
     for i in range(T):
         force = float(contact.normal_force_n[i])
         imprint = None
-        if contact.in_contact[i] and force > 0.0:
+        touching = bool(contact.in_contact[i]) and force > 0.0
+        if want_imprint and (touching or not shortcuts):
             prot = patch.sample(profile.shape, profile.image.mm_per_px, contact.position_mm[i, 0],
                                 contact.position_mm[i, 1], contact.yaw_deg[i], tuple(contact.tilt_deg[i]))
             t = timer.add("fabric", t)
-            imprint = press(prot, profile, fidelity, force_n=force, support_stiffness_kpa_per_mm=support)
+            imprint = press(prot, profile, fidelity, force_n=force if touching else 0.0,
+                            support_stiffness_kpa_per_mm=support, window=window)
             indentation[i] = imprint.indentation_mm
             area[i] = imprint.contact_area_mm2
             t = timer.add("imprint", t)
@@ -144,20 +217,31 @@ def render_sequence(fabric: Fabric, motion: Motion, profile: SensorProfile, fide
             if imprint is None:
                 mk = flat_markers
             else:
-                mk = displace(profile, fidelity, imprint, shear_mm=tuple(contact.shear_mm[i]),
-                              twist_deg=float(contact.twist_deg[i]), rest=rest)
+                shear, twist = tuple(float(v) for v in contact.shear_mm[i]), float(contact.twist_deg[i])
+                if shortcuts:
+                    skip_shear, skip_twist = _negligible_px(shear, twist, profile)
+                    shear = (0.0, 0.0) if skip_shear else shear
+                    twist = 0.0 if skip_twist else twist
+                mk = displace(profile, fidelity, imprint, shear_mm=shear, twist_deg=twist, rest=rest)
             markers_xy[i] = mk.xy_px
             t = timer.add("markers", t)
         else:
             mk = None
-        frame = renderer.render(None if imprint is None else imprint.depth_mm, mk, seed=rng)
-        t = timer.add("optics", t)
+        if want_frames:
+            depth = None if imprint is None else imprint.depth_mm
+            frame = renderer.render(depth, mk, seed=rng)
+            t = timer.add("optics", t)
+        else:
+            frame = None
         yield frame
         t = time.perf_counter()  # time spent by the consumer (encoding) is not ours
 
     labels = contact.to_dict()
-    labels.update(indentation_mm=indentation, contact_area_mm2=area, markers_xy_px=markers_xy,
-                  markers_rest_px=(np.zeros((0, 2), np.float32) if rest is None else rest.astype(np.float32)))
+    if want_imprint:
+        labels.update(indentation_mm=indentation, contact_area_mm2=area)
+    if want_markers:
+        labels.update(markers_xy_px=markers_xy,
+                      markers_rest_px=(np.zeros((0, 2), np.float32) if rest is None else rest.astype(np.float32)))
     if out is not None:
         out.labels = labels
         out.timings_s = dict(timer.seconds)
