@@ -17,6 +17,7 @@ from ..errors import GelsimError
 
 # Command modules, in the order they appear in --help.
 COMMAND_MODULES = (
+    "bench_cmd",
     "fabrics_cmd",
     "generate_cmd",
     "press_cmd",
