@@ -127,10 +127,11 @@ class ErrorAcc:
     def summary(self) -> dict:
         mse = self.se_sum / self.px if self.px else 0.0
         r = lambda v, n: round(v, n) if v is not None else None  # noqa: E731
-        return {"image_l1": r(self.l1_sum / self.px if self.px else 0.0, 4),
-                "psnr": r(psnr_from_mse(mse), 3),
-                "ssim": r(self.ssim_sum / self.frames if self.frames else 1.0, 5),
-                "marker_err_mm": r(self.marker_sum_mm / self.marker_n if self.marker_n else 0.0, 6),
+        # None: not measured (no frames or markers compared); PSNR also None for identical images
+        return {"image_l1": r(self.l1_sum / self.px if self.px else None, 4),
+                "psnr": r(psnr_from_mse(mse) if self.px else None, 3),
+                "ssim": r(self.ssim_sum / self.frames if self.frames else None, 5),
+                "marker_err_mm": r(self.marker_sum_mm / self.marker_n if self.marker_n else None, 6),
                 "force_err_n": r(self.force_sum_n / self.force_n if self.force_n else 0.0, 5)}
 
 
@@ -628,7 +629,8 @@ def run_convergence(config: BenchConfig = BenchConfig(), base: str = "balanced",
             points.append(pt)
             say(f"{knob}={value}: {pt['stage_ms']:.2f} ms ({stage}), {metric} {pt[metric]}")
         points.reverse()
-        sweeps.append({"knob": knob, "stage": stage, "metric": metric, "converged_value": getattr(finest, knob),
+        sweeps.append({"knob": knob, "resolution": list(config.resolution), "stage": stage, "metric": metric,
+                       "converged_value": getattr(finest, knob),
                        "base_value": getattr(base_fid, knob), "points": points})
     settings = _settings(config, scenes)
     settings["bench_seconds"] = round(time.perf_counter() - t_start, 1)
@@ -641,7 +643,8 @@ def convergence_markdown(result: dict) -> str:
              f"{len(s['scenes'])} scenes, {s['frames']} frames each; error against the knob's finest value "
              f"(in bold: the base level's value); load average {s['load_avg']}, {s['date']}.", ""]
     for sw in result["sweeps"]:
-        lines += [f"**{sw['knob']}** (cost: {sw['stage']} stage; error: {sw['metric']})", "",
+        res = "x".join(str(v) for v in sw.get("resolution", s["resolution"]))
+        lines += [f"**{sw['knob']}** at {res} px (cost: {sw['stage']} stage; error: {sw['metric']})", "",
                   "| value | stage ms/frame | ms/frame | image L1 (DN) | PSNR (dB) | SSIM | marker err (mm) "
                   "| force err (N) |", "|---" * 8 + "|"]
         for p in sw["points"]:
@@ -659,6 +662,7 @@ def convergence_plot(result: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     sw = result["sweeps"]
     n = len(sw)
@@ -666,7 +670,7 @@ def convergence_plot(result: dict, path: Path) -> None:
     rows = int(math.ceil(n / cols))
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.4 * rows), squeeze=False)
     for ax, s in zip(axes.ravel(), sw):
-        pts = s["points"][:-1]  # the finest value has zero error by construction
+        pts = s["points"]  # the last (finest) value has zero error by construction
         xs = [p["stage_ms"] for p in pts]
         ys = [p[s["metric"]] for p in pts]
         ax.plot(xs, ys, "-o")
@@ -674,11 +678,14 @@ def convergence_plot(result: dict, path: Path) -> None:
             style = dict(fontweight="bold") if p["value"] == s["base_value"] else {}
             ax.annotate(str(p["value"]), (p["stage_ms"], p[s["metric"]]), textcoords="offset points",
                         xytext=(4, 4), fontsize=8, **style)
-        ax.set_title(f"{s['knob']} (vs {s['converged_value']})", fontsize=10)
+        res = "x".join(str(v) for v in s.get("resolution", result["settings"]["resolution"]))
+        ax.set_title(f"{s['knob']} (vs {s['converged_value']}), {res}", fontsize=10)
         ax.set_xlabel(f"{s['stage']} ms per frame")
         ax.set_ylabel(s["metric"])
-        if all(x > 0 for x in xs):
+        if all(x > 0 for x in xs) and max(xs) > 5 * min(xs):
             ax.set_xscale("log")
+            ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+            ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.grid(True, alpha=0.3)
     for ax in axes.ravel()[n:]:
         ax.axis("off")

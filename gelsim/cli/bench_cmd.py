@@ -20,7 +20,7 @@ def register(sub) -> None:
             "DIR/bench.md, DIR/bench.json and DIR/bench_pareto.png. The defaults run in under 5 minutes\n"
             "on 2 cores. --convergence instead sweeps each knob alone (DIR/convergence.{md,json,png})."),
     )
-    p.add_argument("--out", metavar="DIR", default="bench-out", help="output directory for the reports")
+    p.add_argument("--out", metavar="DIR", default="out/bench", help="output directory for the reports")
     p.add_argument("--resolution", metavar="WxH", default="320x240",
                    help="image size in px, same field of view in mm")
     p.add_argument("--frames", type=int, metavar="N", default=10, help="frames per sequence, pre-contact included")
