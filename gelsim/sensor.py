@@ -86,6 +86,13 @@ class ShadingSpec:
     specular: float = param(0.0, lo=0.0, hi=10.0, doc="specular gain")
     shininess: float = param(10.0, lo=1.0, hi=1000.0, doc="Phong exponent")
     gain_dn: float = param(120.0, lo=0.0, hi=1000.0, doc="image DN added per unit of (shading - flat shading)")
+    model: Literal["phong", "lut"] = param("phong", doc="fast backend's shading: 'phong' from the lights above, "
+                                                       "'lut' a table calibrated on real frames (`gelsim calibrate`)")
+    table: str = param("", doc="shading table .npz for model 'lut', relative to the profile")
+
+    def validate(self, where: str) -> None:
+        if self.model == "lut" and not self.table:
+            raise GelsimError(f"{where}: model 'lut' needs a table; name the .npz written by `gelsim calibrate`")
 
 
 @dataclass(frozen=True)
@@ -98,6 +105,9 @@ class BackgroundSpec:
     nonuniformity_scale_mm: float = param(3.0, lo=0.05, hi=1000.0, lo_open=True,
                                           doc="correlation length of the smooth random illumination field, mm")
     image: str = param("", doc="optional background image (PNG, relative to the profile) replacing the parametric field")
+    image_resample: Literal["area", "linear"] = param(
+        "area", doc="how the image is brought to the profile's size: 'area' (OpenCV INTER_AREA: pixel "
+                    "replication when enlarging) or 'linear' (bilinear, for a smooth downsampled field)")
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "fabrics_cmd",
     "generate_cmd",
     "press_cmd",
+    "realism_cmd",
     "render_cmd",
 )
 

@@ -8,9 +8,12 @@ composited identically here, so the backends differ in shading alone:
 * ``fast``: Lambert + Phong from surface normals under the profile's LEDs,
   numpy/OpenCV in float32, shading only the box around the imprint
   (:mod:`gelsim.optics.fast`);
+* ``fast`` with ``[shading] model = "lut"``: a table calibrated on real frames
+  (:mod:`gelsim.optics.lut`, written by ``gelsim calibrate``);
 * ``pyrender``: the deformed gel as a mesh lit by spot lights with shadows,
   OpenGL through OSMesa or EGL (:mod:`gelsim.optics.pyrender_backend`), the
-  yardstick for ``fast``.
+  yardstick for ``fast``. It always shades from the profile's lights (a
+  calibrated table has no meaning for a mesh renderer).
 
 Pipeline per frame (all float32 DN 0-255 until the last step)::
 
@@ -95,7 +98,10 @@ class Renderer:
         bg = gaussian_blur(background_float(self._fine, maps, self.seed), self._blur_fine)
         self._bg_fine = bg
         self._bg = bg if s == 1 else cv2.resize(bg, (w, h), interpolation=cv2.INTER_AREA)
-        if backend == "fast":
+        if backend == "fast" and profile.shading.model == "lut":
+            from .lut import LutShader
+            self._shader = LutShader(self._fine, maps)
+        elif backend == "fast":
             from .fast import FastShader
             self._shader = FastShader(self._fine, maps)
         else:

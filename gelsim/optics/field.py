@@ -116,10 +116,18 @@ def _background_image(profile) -> np.ndarray:
     if img is None:
         raise GelsimError(f"background image {path} cannot be read; give a PNG path relative to the profile")
     img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    h, w = profile.shape
-    if img.shape[:2] != (h, w):
-        img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
-    return img.astype(np.float32)
+    return resize_background(img.astype(np.float32), profile.shape, profile.background.image_resample)
+
+
+def resize_background(img: np.ndarray, shape: tuple[int, int], resample: str = "area") -> np.ndarray:
+    """A background image at ``shape`` (H, W): ``"area"`` (OpenCV's INTER_AREA, which replicates
+    pixels when enlarging) or ``"linear"`` (bilinear when enlarging, area when shrinking)."""
+    h, w = shape
+    if img.shape[:2] == (h, w):
+        return img
+    shrink = img.shape[0] > h or img.shape[1] > w
+    interp = cv2.INTER_AREA if resample == "area" or shrink else cv2.INTER_LINEAR
+    return cv2.resize(img, (w, h), interpolation=interp)
 
 
 def background_float(profile, maps: list[LightMaps], seed: int) -> np.ndarray:

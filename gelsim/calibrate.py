@@ -1,0 +1,378 @@
+"""Fit a sensor profile to real ball presses (a data pack, see :mod:`gelsim.realism`).
+
+What is fitted, from the selected frames only:
+
+* background: the no-contact frame ``f0``, smoothed and stored at half resolution
+  as a PNG beside the profile (``[background] image``);
+* shading: the lookup table of :mod:`gelsim.optics.lut` (colour change over the
+  surface normal with a first-order spatial term, plus a shadow colour per in-plane
+  direction), by regularised linear least squares on the pixels near each contact;
+* gel response: the gel thickness (sets the pyramid spread of the imprint around the
+  ball) and the membrane smoothing, and the shadows' grazing elevation, chosen by
+  two-fold cross-validation among the selected frames (the table is refitted for
+  each candidate);
+* noise: read noise and shot gain from the frame-to-frame differences away from
+  the contacts.
+
+Each press is simulated as in :func:`gelsim.realism.ball_depth`: the ball pressed to
+the depth that gives the annotated contact radius.
+"""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import spsolve
+
+from .errors import GelsimError
+from .optics.lut import normal_xy, shadow_factors
+from .params import dump_toml, to_dict
+from .realism import DISK_RADII, DataPack, ball_depth, disk_mask
+
+# Fitting constants (why each has its value):
+N_BINS = 41             # normal bins over -1..1: 0.05 per bin, finer than the ball's normal changes per px
+FIT_RADII = 1.75        # fit inside 1.75 contact radii: the scored disk (1.5) plus the rim's outer edge
+FIT_STRIDE = 2          # every 2nd pixel each way: neighbours are nearly the same sample (the image is smooth)
+SMOOTH_WEIGHT = 3.0     # second-difference penalty between bins, per unit of sample weight; tuned on even frames
+RIDGE_WEIGHT = 1e-3     # keeps bins without samples near zero
+SHADOW_DIRS = 8         # in-plane directions of shadow terms, 45 degrees apart: no need to know where the LEDs are
+SHADOW_SAT_MM = 0.05    # occlusion at which a shadow is half dark: a few px of height at grazing angles
+BG_SCALE = 2            # background stored at 1/2 resolution: keeps 2 px detail, is not the raw frame
+BG_SIGMA_PX = 1.0       # smoothing before downsampling (full-resolution px): removes the frame's own noise
+DEFAULT_GRID = {
+    "thickness_mm": (1.0, 2.0, 3.0),
+    "membrane_smoothing_mm": (0.02, 0.06, 0.12),
+    "shadow_tan": (0.0, 0.25, 0.4, 0.6),    # 0 = no shadow terms
+}
+
+
+# --------------------------------------------------------------------------------------
+# Background and noise
+# --------------------------------------------------------------------------------------
+def fit_background(f0: np.ndarray) -> np.ndarray:
+    """The smoothed, half-resolution background: uint8 ``(H/2, W/2, 3)`` RGB."""
+    h, w = f0.shape[:2]
+    k = 2 * int(math.ceil(3 * BG_SIGMA_PX)) + 1
+    b = cv2.GaussianBlur(f0.astype(np.float32), (k, k), BG_SIGMA_PX, borderType=cv2.BORDER_REPLICATE)
+    small = cv2.resize(b, (w // BG_SCALE, h // BG_SCALE), interpolation=cv2.INTER_AREA)
+    return np.clip(np.rint(small), 0, 255).astype(np.uint8)
+
+
+def upsample_background(small: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The stored background at ``shape`` (H, W) as the renderer sees it: float32 RGB."""
+    from .optics.field import resize_background
+    return resize_background(small.astype(np.float32), shape, "linear")
+
+
+def fit_noise(pack: DataPack, idx: list[int]) -> tuple[float, float]:
+    """``(read_sigma_dn, shot_gain)`` from ``frame - f0`` away from the contacts.
+
+    The difference of two frames has twice one frame's noise variance; slow drift is
+    removed by subtracting a blur (sigma 5 px) of the difference. The variance is
+    regressed on the signal level: ``var = read^2 + shot_gain * level``.
+    """
+    f0 = pack.f0.astype(np.float32)
+    levels, variances = [], []
+    for i in idx:
+        diff = pack.imgs[i].astype(np.float32) - f0
+        hp = diff - cv2.GaussianBlur(diff, (0, 0), 5.0)
+        away = ~disk_mask(pack.centers_px[i], 3.0 * pack.radii_px[i], pack.shape)
+        lv = f0[away].ravel()
+        v = (hp[away].ravel() ** 2) / 2.0
+        levels.append(lv)
+        variances.append(v)
+    lv = np.concatenate(levels)
+    v = np.concatenate(variances)
+    edges = np.percentile(lv, np.linspace(0, 100, 11))
+    xs, ys = [], []
+    for a, b in zip(edges[:-1], edges[1:]):
+        m = (lv >= a) & (lv <= b)
+        if m.sum() > 100:
+            xs.append(lv[m].mean())
+            ys.append(v[m].mean())
+    # Shot noise is told from read noise only by its growth with the level; over less
+    # than a 2:1 range of levels the slope is not determined, so all goes to read noise.
+    if len(xs) >= 2 and xs[-1] >= 2.0 * max(xs[0], 1.0):
+        slope, icpt = np.polyfit(xs, ys, 1)
+        slope, icpt = max(float(slope), 0.0), max(float(icpt), 0.0)
+    else:
+        slope, icpt = 0.0, float(v.mean())
+    # a blur of sigma 5 px leaves about 98% of white noise's variance in the high-pass part
+    return math.sqrt(icpt), slope
+
+
+# --------------------------------------------------------------------------------------
+# Shading table
+# --------------------------------------------------------------------------------------
+def _frame_samples(profile, pack: DataPack, i: int, bg: np.ndarray, ball_mm: float, shadow_tan: float):
+    """Features and targets of frame ``i``: dict of nx, ny, xn, yn, occ (K, n) and target (n, 3)."""
+    h, w = pack.shape
+    depth = ball_depth(profile, pack.centers_px[i], pack.radii_px[i], ball_mm)
+    c, r = pack.centers_px[i], pack.radii_px[i]
+    rr = FIT_RADII * r
+    y0, y1 = max(0, int(c[1] - rr) - 1), min(h, int(c[1] + rr) + 2)
+    x0, x1 = max(0, int(c[0] - rr) - 1), min(w, int(c[0] + rr) + 2)
+    roi = (slice(y0, y1), slice(x0, x1))
+    mm = profile.image.mm_per_px
+    nx, ny = normal_xy(depth, mm)
+    yy, xx = np.mgrid[y0:y1:FIT_STRIDE, x0:x1:FIT_STRIDE]
+    keep = (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= rr * rr
+    yy, xx = yy[keep], xx[keep]
+    fw, fh = profile.field_mm
+    out = {
+        "nx": nx[yy, xx], "ny": ny[yy, xx],
+        "xn": ((xx - (w - 1) / 2.0) * mm / (fw / 2.0)).astype(np.float32),
+        "yn": ((yy - (h - 1) / 2.0) * mm / (fh / 2.0)).astype(np.float32),
+        "target": pack.imgs[i][yy, xx].astype(np.float32) - bg[yy, xx],
+    }
+    if shadow_tan > 0:
+        dirs = 360.0 * np.arange(SHADOW_DIRS) / SHADOW_DIRS
+        f, to_full = shadow_factors(depth, mm, dirs, [shadow_tan] * SHADOW_DIRS, SHADOW_SAT_MM)
+        # the renderer brings the factors to full resolution the same way (bilinear)
+        full = cv2.warpAffine(f, to_full, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                              borderMode=cv2.BORDER_REPLICATE) if SHADOW_DIRS <= 4 else np.stack(
+            [cv2.warpAffine(np.ascontiguousarray(f[..., k]), to_full, (w, h),
+                            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+             for k in range(SHADOW_DIRS)], axis=-1)
+        out["occ"] = full[yy, xx].T
+    del roi
+    return out
+
+
+def _design(samples: list[dict], nb: int) -> tuple[sparse.csr_matrix, np.ndarray]:
+    """Sparse design matrix (n, 3 nb^2 [+ K]) and targets (n, 3) of the table model."""
+    nx = np.concatenate([s["nx"] for s in samples])
+    ny = np.concatenate([s["ny"] for s in samples])
+    xn = np.concatenate([s["xn"] for s in samples])
+    yn = np.concatenate([s["yn"] for s in samples])
+    y = np.concatenate([s["target"] for s in samples]).astype(np.float64)
+    n = nx.size
+    half = (nb - 1) / 2.0
+    mx = np.clip(nx * half + half, 0, nb - 1 - 1e-6)
+    my = np.clip(ny * half + half, 0, nb - 1 - 1e-6)
+    ix, iy = np.floor(mx).astype(np.int64), np.floor(my).astype(np.int64)
+    fx, fy = mx - ix, my - iy
+    rows, cols, vals = [], [], []
+    basis = (np.ones(n), xn, yn)
+    ar = np.arange(n)
+    for dy, dx, wgt in ((0, 0, (1 - fx) * (1 - fy)), (0, 1, fx * (1 - fy)), (1, 0, (1 - fx) * fy), (1, 1, fx * fy)):
+        b = (iy + dy) * nb + (ix + dx)
+        for k, bv in enumerate(basis):
+            rows.append(ar)
+            cols.append(b * 3 + k)
+            vals.append(wgt * bv)
+    ncol = 3 * nb * nb
+    if "occ" in samples[0]:
+        occ = np.concatenate([s["occ"] for s in samples], axis=1)
+        for k in range(occ.shape[0]):
+            rows.append(ar)
+            cols.append(np.full(n, ncol + k))
+            vals.append(occ[k])
+        ncol += occ.shape[0]
+    a = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, ncol))
+    return a, y
+
+
+def _regulariser(nb: int, ncol: int) -> sparse.csr_matrix:
+    """Second differences between neighbouring bins (both axes, each basis) and a small ridge."""
+    rows, cols, vals = [], [], []
+    r = 0
+    for k in range(3):
+        for j in range(nb):
+            for i in range(1, nb - 1):
+                for (a, b) in (((j, i - 1), (j, i + 1)), ((i - 1, j), (i + 1, j))):
+                    mid = (j, i) if a[0] == j else (i, j)
+                    for (bj, bi), v in ((a, 1.0), (mid, -2.0), (b, 1.0)):
+                        rows.append(r)
+                        cols.append((bj * nb + bi) * 3 + k)
+                        vals.append(v)
+                    r += 1
+    return sparse.csr_matrix((vals, (rows, cols)), shape=(r, ncol))
+
+
+def fit_table(samples: list[dict], nb: int = N_BINS) -> dict:
+    """Least-squares table (and shadow colours) from samples; returns the LUT file's arrays."""
+    a, y = _design(samples, nb)
+    n, ncol = a.shape
+    reg = _regulariser(nb, ncol)
+    lam = SMOOTH_WEIGHT * n / (nb * nb)
+    m = (a.T @ a + lam * (reg.T @ reg) + RIDGE_WEIGHT * lam * sparse.identity(ncol)).tocsc()
+    # T(0, 0) = 0: a flat gel shows the background, so pin the centre bin's three terms
+    c = ((nb // 2) * nb + nb // 2) * 3
+    pin = sparse.lil_matrix((ncol, ncol))
+    for k in range(3):
+        pin[c + k, c + k] = 1e6 * lam
+    m = (m + pin.tocsc()).tocsc()
+    rhs = a.T @ y
+    sol = spsolve(m, rhs)
+    sol = np.asarray(sol).reshape(ncol, 3)
+    table = sol[:3 * nb * nb].reshape(nb, nb, 3, 3)       # (row=ny, col=nx, basis, colour)
+    out = {"table": np.ascontiguousarray(table.reshape(nb, nb, 9), dtype=np.float32)}
+    if ncol > 3 * nb * nb:
+        out["shadow_rgb"] = sol[3 * nb * nb:].astype(np.float32)
+    return out
+
+
+def predict(table: dict, s: dict, nb: int = N_BINS) -> np.ndarray:
+    """The table's colour change (n, 3) for one frame's samples (for cross-validation)."""
+    a, _ = _design([s], nb)
+    coef = np.concatenate([table["table"].reshape(nb * nb * 3, 3),
+                           table.get("shadow_rgb", np.zeros((0, 3), np.float32))])
+    return a @ coef.astype(np.float64)
+
+
+# --------------------------------------------------------------------------------------
+# Whole calibration
+# --------------------------------------------------------------------------------------
+def fit_lights(table: dict, template) -> tuple:
+    """One light per colour channel, for backends that shade from lights (pyrender): each
+    channel's azimuth from the slope of its table response near the flat normal
+    (for small tilts the change is ~ nx lx + ny ly, so its gradient over (nx, ny) points
+    to where the light comes from); colour the pure channel. Elevation stays the
+    template's (a lookup over normals does not pin it down)."""
+    nb = table["table"].shape[0]
+    t0 = table["table"][..., 0:3]                       # constant spatial term, (ny, nx, colour)
+    u = np.linspace(-1, 1, nb)
+    ny, nx = np.meshgrid(u, u, indexing="ij")
+    near = nx ** 2 + ny ** 2 <= 0.3 ** 2                # |n_xy| <= 0.3: the linear regime
+    a = np.stack([nx[near], ny[near]], axis=1)
+    lights = []
+    names = ("red", "green", "blue")
+    for c in range(3):
+        g, *_ = np.linalg.lstsq(a, t0[..., c][near], rcond=None)
+        az = math.degrees(math.atan2(g[1], g[0]))
+        col = [0.0, 0.0, 0.0]
+        col[c] = 1.0
+        lights.append(dataclasses.replace(template, name=names[c], color_rgb=tuple(col), azimuth_deg=round(az, 1),
+                                          intensity=1.0, falloff_per_mm=0.0, distance_mm=0.0))
+    return tuple(lights)
+
+
+def _with_gel(profile, **gel):
+    return dataclasses.replace(profile, gel=dataclasses.replace(profile.gel, **gel))
+
+
+def _cv_mse(profile, pack, idx, bg, ball_mm, shadow_tan) -> float:
+    """Two-fold cross-validated MSE of the table model inside the scored disks of ``idx``."""
+    samples = [_frame_samples(profile, pack, i, bg, ball_mm, shadow_tan) for i in idx]
+    # score only inside DISK_RADII (the metric's disk) although the fit reaches FIT_RADII
+    for s, i in zip(samples, idx):
+        c, r = pack.centers_px[i], pack.radii_px[i]
+        w, h = profile.field_mm
+        px = (s["xn"] * (w / 2.0) / profile.image.mm_per_px + (pack.shape[1] - 1) / 2.0)
+        py = (s["yn"] * (h / 2.0) / profile.image.mm_per_px + (pack.shape[0] - 1) / 2.0)
+        s["scored"] = (px - c[0]) ** 2 + (py - c[1]) ** 2 <= (DISK_RADII * r) ** 2
+    folds = (samples[0::2], samples[1::2])
+    err, cnt = 0.0, 0
+    for fit_on, test_on in ((folds[0], folds[1]), (folds[1], folds[0])):
+        t = fit_table(fit_on)
+        for s in test_on:
+            e = predict(t, s) - s["target"]
+            err += float((e[s["scored"]] ** 2).sum())
+            cnt += int(s["scored"].sum()) * 3
+    return err / max(cnt, 1)
+
+
+def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str = "even",
+              mm_per_px: float = 0.0295, ball_diameter_mm: float = 4.0, grid: dict | None = None,
+              name: str | None = None, note: str = "", log=None) -> dict:
+    """Fit a profile to ``pack``'s selected frames and write it to ``out_path`` (TOML), with its
+    background PNG and shading table ``.npz`` beside it (same stem).
+
+    ``base_profile`` provides the sections that are not fitted (gel stiffness, markers,
+    camera); ``note`` goes into the profile's header (e.g. the data's licence). Returns a report: the chosen parameters, the cross-validation MSE of every
+    candidate, the noise fit and the file paths.
+    """
+    grid = {**DEFAULT_GRID, **(grid or {})}
+    out_path = Path(out_path)
+    if out_path.suffix != ".toml":
+        raise GelsimError(f"--out {out_path} must end in .toml; the table and background go beside it")
+    if not out_path.parent.is_dir():
+        raise GelsimError(f"folder {out_path.parent} does not exist; create it or choose another --out")
+    if not (mm_per_px > 0 and math.isfinite(mm_per_px)) or not (ball_diameter_mm > 0 and math.isfinite(ball_diameter_mm)):
+        raise GelsimError("--mm-per-px and --ball-diameter-mm must be positive numbers")
+    idx = pack.select(frames)
+    if len(idx) < 4:
+        raise GelsimError(f"only {len(idx)} frames selected; calibration needs at least 4 ball presses")
+    h, w = pack.shape
+    log = log or (lambda msg: None)
+    prof = dataclasses.replace(
+        base_profile, name=name or out_path.stem,
+        image=dataclasses.replace(base_profile.image, width_px=w, height_px=h, mm_per_px=mm_per_px),
+        markers=dataclasses.replace(base_profile.markers, enabled=False),
+        camera=dataclasses.replace(base_profile.camera, blur_sigma_px=0.0, vignetting=0.0))
+    # the ball goes as deep as its radius; the pad must not bottom out before
+    max_ind = max(prof.gel.max_indentation_mm, ball_diameter_mm / 2.0)
+    prof = _with_gel(prof, max_indentation_mm=max_ind)
+    small = fit_background(pack.f0)
+    bg = upsample_background(small, (h, w))
+    read, shot = fit_noise(pack, idx)
+    log(f"noise: read {read:.2f} DN, shot gain {shot:.4f}")
+
+    trials = []
+    best = None
+    for th, sm in itertools.product(grid["thickness_mm"], grid["membrane_smoothing_mm"]):
+        p = _with_gel(prof, thickness_mm=float(th), membrane_smoothing_mm=float(sm))
+        mse = _cv_mse(p, pack, idx, bg, ball_diameter_mm, 0.0)
+        trials.append({"thickness_mm": th, "membrane_smoothing_mm": sm, "shadow_tan": 0.0, "cv_mse": mse})
+        log(f"thickness {th} mm, smoothing {sm} mm: cv mse {mse:.2f}")
+        if best is None or mse < best["cv_mse"]:
+            best = trials[-1]
+    p_best = _with_gel(prof, thickness_mm=float(best["thickness_mm"]),
+                       membrane_smoothing_mm=float(best["membrane_smoothing_mm"]))
+    for tan_e in grid["shadow_tan"]:
+        if tan_e <= 0:
+            continue
+        mse = _cv_mse(p_best, pack, idx, bg, ball_diameter_mm, float(tan_e))
+        trials.append({"thickness_mm": best["thickness_mm"], "membrane_smoothing_mm": best["membrane_smoothing_mm"],
+                       "shadow_tan": tan_e, "cv_mse": mse})
+        log(f"shadow tan {tan_e}: cv mse {mse:.2f}")
+        if mse < best["cv_mse"]:
+            best = trials[-1]
+    tan_e = float(best["shadow_tan"])
+    samples = [_frame_samples(p_best, pack, i, bg, ball_diameter_mm, tan_e) for i in idx]
+    table = fit_table(samples)
+    if tan_e > 0:
+        table["shadow_dirs_deg"] = (360.0 * np.arange(SHADOW_DIRS) / SHADOW_DIRS).astype(np.float32)
+        table["shadow_tan"] = np.full(SHADOW_DIRS, tan_e, np.float32)
+        table["shadow_sat_mm"] = np.float32(SHADOW_SAT_MM)
+
+    stem = out_path.stem
+    bg_file = out_path.with_name(f"{stem}-background.png")
+    lut_file = out_path.with_name(f"{stem}-shading.npz")
+    _write_png(bg_file, small)
+    tmp = lut_file.with_name(lut_file.name + ".tmp.npz")
+    np.savez_compressed(tmp, **table)
+    os.replace(tmp, lut_file)
+    fitted = dataclasses.replace(
+        p_best, lights=fit_lights(table, p_best.lights[0]),
+        shading=dataclasses.replace(p_best.shading, model="lut", table=lut_file.name),
+        background=dataclasses.replace(p_best.background, image=bg_file.name, image_resample="linear",
+                                       rgb_dn=tuple(float(v) for v in pack.f0.reshape(-1, 3).mean(0))),
+        noise=dataclasses.replace(p_best.noise, read_sigma_dn=round(read, 3), shot_gain=round(shot, 5)),
+        source="")
+    data = to_dict(fitted)
+    data.pop("source", None)
+    header = (f"Fitted by `gelsim calibrate` on {len(idx)} {frames} frames of {Path(pack.source).name}\n"
+              f"(mm_per_px {mm_per_px}, ball {ball_diameter_mm} mm). Fitted: background image, shading table,\n"
+              f"gel thickness_mm and membrane_smoothing_mm, noise; lights: azimuths from the table (for pyrender).\n"
+              f"Other values come from the base profile." + (f"\n{note}" if note else ""))
+    tmp = out_path.with_name(out_path.name + ".tmp")
+    tmp.write_text(dump_toml(data, header))
+    os.replace(tmp, out_path)
+    return {"profile": str(out_path), "background": str(bg_file), "table": str(lut_file),
+            "frames": idx, "best": best, "trials": trials,
+            "noise": {"read_sigma_dn": read, "shot_gain": shot}}
+
+
+def _write_png(path: Path, rgb: np.ndarray) -> None:
+    tmp = path.with_name(path.name + ".tmp.png")
+    if not cv2.imwrite(str(tmp), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
+        raise GelsimError(f"cannot write {path}; check that its folder is writable")
+    os.replace(tmp, path)

@@ -1,0 +1,139 @@
+"""``gelsim calibrate`` and ``gelsim realism``: fit a sensor profile to real ball presses and score it."""
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+
+from ..errors import GelsimError
+
+
+def register(sub) -> None:
+    from . import HelpFormatter
+
+    c = sub.add_parser(
+        "calibrate", formatter_class=HelpFormatter,
+        help="fit a sensor profile (background, shading table, gel spread, noise) to real ball presses",
+        description=(
+            "Fit a sensor profile to a data pack of real ball presses (an .npz with f0, imgs,\n"
+            "touch_center, touch_radius, colours stored BGR as OpenCV writes them; the format of\n"
+            "taxim's calibration set). Writes PROFILE (.toml) and, beside it, PROFILE-background.png\n"
+            "and PROFILE-shading.npz. Only the selected frames are used."),
+    )
+    c.add_argument("datapack", metavar="DATAPACK", help="data pack .npz (or 'r15': taxim's GelSight R1.5 set, "
+                                                        "fetched once into ~/.cache/gelsim)")
+    c.add_argument("--out", required=True, metavar="PROFILE", help="profile to write, .toml")
+    c.add_argument("--frames", default="even", choices=["even", "odd", "all"], help="frames to fit on")
+    c.add_argument("--mm-per-px", type=float, default=0.0295, help="size of one pixel on the gel, mm")
+    c.add_argument("--ball-diameter-mm", type=float, default=4.0, help="diameter of the pressed ball, mm")
+    c.add_argument("--base-profile", default="gelsight-r15", metavar="NAME|PATH",
+                   help="profile giving the sections that are not fitted (gel stiffness, markers)")
+    c.add_argument("--channel-order", default="bgr", choices=["bgr", "rgb"], help="colour order of the pack")
+    c.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    c.set_defaults(handler=run_calibrate)
+
+    r = sub.add_parser(
+        "realism", formatter_class=HelpFormatter,
+        help="render real ball presses with a profile and score them against the real frames",
+        description=(
+            "Render each selected ball press of a data pack from its centre and radius (the ball\n"
+            "pressed to the depth that gives that contact radius), noiseless, with the fast backend,\n"
+            "and compare with the real frame: SSIM/PSNR/L1 on a 400x400 crop around the contact,\n"
+            "PSNR/L1 inside the disk of 1.5 contact radii (SSIM on its bounding box), and skill =\n"
+            "1 - MSE(sim)/MSE(background) in that disk. The background frame f0 as the prediction\n"
+            "is the baseline."),
+    )
+    r.add_argument("--profile", default="gelsight-r15", metavar="NAME|PATH", help="sensor profile")
+    r.add_argument("--datapack", default=None, metavar="PATH",
+                   help="data pack .npz [default: taxim's GelSight R1.5 set, fetched once into ~/.cache/gelsim]")
+    r.add_argument("--frames", default="odd", choices=["odd", "even", "all"], help="frames to score")
+    r.add_argument("--mm-per-px", type=float, default=0.0295, help="size of one pixel on the gel, mm")
+    r.add_argument("--ball-diameter-mm", type=float, default=4.0, help="diameter of the pressed ball, mm")
+    r.add_argument("--channel-order", default="bgr", choices=["bgr", "rgb"], help="colour order of the pack")
+    r.add_argument("--out", default=None, metavar="FILE.png",
+                   help="write real | simulated | 3 x |difference| of the first scored frame [default: none]")
+    r.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    r.set_defaults(handler=run_realism)
+
+
+def _positive(name: str, v: float) -> None:
+    if not (math.isfinite(v) and v > 0):
+        raise GelsimError(f"{name} {v} is not a positive number; give a value > 0")
+
+
+R15_NOTE = ("Data: taxim 1.4.1's GelSight R1.5 calibration set (Si and Yuan, RA-L 2022; MIT licence).\n"
+            "The background PNG is its f0 frame smoothed (sigma 1 px) at half resolution; no raw frame is shipped.")
+
+
+def _pack(path, channel_order):
+    from ..realism import fetch_r15_pack, load_datapack
+
+    if path in (None, "r15"):
+        path = fetch_r15_pack()
+    return load_datapack(path, channel_order)
+
+
+def run_calibrate(args) -> int:
+    from ..calibrate import calibrate
+    from ..sensor import load_profile
+    from . import print_json
+
+    _positive("--mm-per-px", args.mm_per_px)
+    _positive("--ball-diameter-mm", args.ball_diameter_mm)
+    base = load_profile(args.base_profile)
+    pack = _pack(args.datapack, args.channel_order)
+    log = (lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr, flush=True))
+    rep = calibrate(pack, base, args.out, frames=args.frames, mm_per_px=args.mm_per_px,
+                    ball_diameter_mm=args.ball_diameter_mm, log=log,
+                    note=R15_NOTE if args.datapack == "r15" else "")
+    if args.json:
+        print_json(rep)
+    else:
+        b = rep["best"]
+        print(f"wrote {rep['profile']} (+ {rep['table']}, {rep['background']}) from {len(rep['frames'])} frames: "
+              f"thickness {b['thickness_mm']} mm, smoothing {b['membrane_smoothing_mm']} mm, "
+              f"shadow slope {b['shadow_tan']}, cross-validated MSE {b['cv_mse']:.1f}")
+    return 0
+
+
+def realism_report(profile="gelsight-r15", datapack=None, frames: str = "odd", *, mm_per_px: float = 0.0295,
+                   ball_diameter_mm: float = 4.0, channel_order: str = "bgr", out=None) -> dict:
+    """What ``gelsim realism --json`` prints (see :func:`gelsim.realism.evaluate`)."""
+    from ..realism import evaluate, side_by_side, write_png
+    from ..sensor import load_profile
+
+    _positive("--mm-per-px", mm_per_px)
+    _positive("--ball-diameter-mm", ball_diameter_mm)
+    prof = load_profile(profile)
+    pack = _pack(datapack, channel_order)
+    h, w = pack.shape
+    if prof.shape != (h, w):
+        prof = prof.with_resolution(w, h)
+    prof = dataclasses.replace(prof, image=dataclasses.replace(prof.image, mm_per_px=mm_per_px))
+    keep = pack.select(frames)[0]
+    rep = evaluate(prof, pack, frames, ball_diameter_mm=ball_diameter_mm, keep=keep if out else None)
+    example = rep.pop("example", None)
+    if out and example is not None:
+        write_png(out, side_by_side(*example))
+        rep["image"] = str(out)
+    rep["profile"] = prof.name
+    return rep
+
+
+def run_realism(args) -> int:
+    from . import print_json
+
+    rep = realism_report(args.profile, args.datapack, args.frames, mm_per_px=args.mm_per_px,
+                         ball_diameter_mm=args.ball_diameter_mm, channel_order=args.channel_order, out=args.out)
+    if args.json:
+        print_json(rep)
+        return 0
+    print(f"{rep['frames']} {args.frames} frames, profile {rep['profile']}, "
+          f"{rep['ms_per_frame']:.1f} ms per frame (imprint + render)")
+    print(f"{'':10s} {'crop SSIM':>9s} {'PSNR':>6s} {'L1':>5s} | {'contact SSIM':>12s} {'PSNR':>6s} {'L1':>5s} | skill")
+    for name, r in (("simulated", rep), ("baseline", rep["baseline"])):
+        print(f"{name:10s} {r['crop']['ssim']:9.4f} {r['crop']['psnr']:6.2f} {r['crop']['l1']:5.2f} | "
+              f"{r['contact']['ssim']:12.4f} {r['contact']['psnr']:6.2f} {r['contact']['l1']:5.2f} | {r['skill']:.3f}")
+    if rep.get("image"):
+        print(f"wrote {rep['image']}")
+    return 0

@@ -1,0 +1,242 @@
+"""Calibrated shading: a lookup table of the colour change over the membrane's normal.
+
+``[shading] model = "lut"`` in a profile selects this shader for the fast backend;
+``shading.table`` names an ``.npz`` beside the profile, written by
+:func:`gelsim.calibrate.calibrate` from real ball presses. The colour change of a
+pixel with respect to the flat gel is
+
+    delta_c(n, x, y) = T_c0(nx, ny) + T_c1(nx, ny) * xn + T_c2(nx, ny) * yn
+
+with ``(nx, ny)`` the in-plane components of the unit surface normal (bilinear
+interpolation between the table's bins, which span -1..1), ``xn, yn`` the pixel's
+position scaled to -1..1 across the field of view (so a table is independent of
+the resolution), ``T(0, 0) = 0`` (a flat gel shows the background). The spatial
+terms carry what a lookup over normals alone cannot: the LEDs' light falls off
+across the gel, so the same slope is brighter near its LED. This is the idea of
+Taxim's per-pixel polynomial table (Si and Yuan 2022) with a first-order
+polynomial in position, fitted here by regularised least squares.
+
+Optionally a shadow term: for each of ``K`` in-plane directions ``phi_k`` the
+table holds a colour per unit of *occlusion* ``o_k = max(0, max_{s>0}(h(p + s u_k) -
+h(p) - s tan(e_k)))`` (mm, ``h`` the imprint height, ``u_k`` the direction towards
+the light), i.e. how far the surface towards the light rises above the grazing
+ray at elevation ``e_k``; the colour change adds ``sum_k S_k o_k / (o_k + o_sat)``.
+The running max is computed on the image rotated so that ``u_k`` runs along columns,
+at half resolution.
+
+Table file keys: ``table`` float32 ``(nb, nb, 9)`` (bin row = ny, column = nx;
+channel ``3 * basis + colour``), and optionally ``shadow_dirs_deg`` ``(K,)``,
+``shadow_tan`` ``(K,)``, ``shadow_rgb`` ``(K, 3)`` DN, ``shadow_sat_mm`` scalar.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import GelsimError
+from .fast import imprint_roi
+from .field import pixel_grid_mm
+
+
+def table_path(profile) -> Path:
+    """The profile's LUT file (``shading.table`` relative to the profile file)."""
+    spec = profile.shading.table
+    if not spec:
+        raise GelsimError(f"profile {profile.name}: shading.model is 'lut' but shading.table is empty; "
+                          "name the .npz written by `gelsim calibrate`")
+    p = Path(spec)
+    if not p.is_absolute():
+        p = (Path(profile.source).parent if profile.source else Path.cwd()) / p
+    return p
+
+
+def load_table(path: str | Path) -> dict:
+    """Read and check a LUT file (see the module docstring); arrays come back float32."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as e:
+        raise GelsimError(f"shading table {path} cannot be read ({e}); rerun `gelsim calibrate`") from None
+    t = data.get("table")
+    if t is None or t.ndim != 3 or t.shape[0] != t.shape[1] or t.shape[2] != 9 or t.shape[0] < 3:
+        raise GelsimError(f"shading table {path}: 'table' must be (nb, nb, 9) with nb >= 3; rerun `gelsim calibrate`")
+    out = {"table": np.ascontiguousarray(t, np.float32)}
+    if "shadow_rgb" in data:
+        k = len(data["shadow_dirs_deg"])
+        if data["shadow_rgb"].shape != (k, 3) or data["shadow_tan"].shape != (k,):
+            raise GelsimError(f"shading table {path}: shadow arrays disagree in length; rerun `gelsim calibrate`")
+        for key in ("shadow_dirs_deg", "shadow_tan", "shadow_rgb"):
+            out[key] = np.asarray(data[key], np.float32)
+        out["shadow_sat_mm"] = float(data["shadow_sat_mm"])
+    return out
+
+
+def normal_xy(depth: np.ndarray, mm_per_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """In-plane components ``(nx, ny)`` of the unit normal of the imprint surface: float32, same shape.
+
+    The surface rises towards the camera by the depth, so its normal is
+    ``(-gx, -gy, 1) / sqrt(1 + gx^2 + gy^2)`` with ``g`` the depth's slope (Sobel 3x3,
+    which responds 8 per unit step: scaled to mm/mm)."""
+    gx = cv2.Sobel(depth, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / (8.0 * mm_per_px), borderType=cv2.BORDER_REPLICATE)
+    gy = cv2.Sobel(depth, cv2.CV_32F, 0, 1, ksize=3, scale=1.0 / (8.0 * mm_per_px), borderType=cv2.BORDER_REPLICATE)
+    inv = cv2.sqrt(1.0 + gx * gx + gy * gy)
+    cv2.divide(-1.0, inv, inv)
+    return gx * inv, gy * inv
+
+
+# Shadows vary over several pixels (the ball's rim is blurred by the gel), so they are
+# computed at half resolution: 4x fewer pixels, no visible change (checked in the tests).
+SHADOW_SCALE = 0.5
+
+
+def _to_rotated(shape: tuple[int, int], dir_deg: float, scale: float) -> tuple[np.ndarray, int]:
+    """Affine map (2x3) from full-resolution pixels to the rotated, scaled square of side ``n``
+    in which direction ``dir_deg`` points along -y (up the columns)."""
+    h, w = shape
+    n = int(math.ceil(math.hypot(h, w) * scale)) + 2
+    c = ((w - 1) / 2.0, (h - 1) / 2.0)
+    # cv2's angle turns counter-clockwise on screen: dir_deg + 90 takes the direction to -y
+    m = cv2.getRotationMatrix2D(c, dir_deg + 90.0, scale)
+    m[:, 2] += ((n - 1) / 2.0 - c[0], (n - 1) / 2.0 - c[1])
+    return m, n
+
+
+def _occlusion_rotated(depth: np.ndarray, m: np.ndarray, n: int, step_mm: float) -> np.ndarray:
+    """Occlusion in the rotated square: running max up the columns of ``h(s) - s tan_e``."""
+    rot = cv2.warpAffine(depth, m, (n, n), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    # g = h(s) - s tan_e with s growing up the rows (towards the light)
+    g = rot - (np.arange(n, dtype=np.float32)[::-1] * np.float32(step_mm))[:, None]
+    run = np.maximum.accumulate(g, axis=0)        # run[i] = max of g over rows <= i
+    occ = np.zeros_like(g)
+    np.subtract(run[:-1], g[1:], out=occ[1:])     # strictly ahead of each row
+    np.maximum(occ, 0.0, out=occ)
+    return occ
+
+
+def occlusion(depth: np.ndarray, mm_per_px: float, dir_deg: float, tan_e: float,
+              scale: float = SHADOW_SCALE) -> np.ndarray:
+    """Height of the surface towards the light above the grazing ray, mm: float32 like ``depth``.
+
+    ``o(p) = max(0, max_{s > 0} h(p + s u) - h(p) - s tan_e)`` with ``u`` the unit
+    in-plane vector at ``dir_deg`` (0 = +x, 90 = +y). Computed at ``scale`` times the
+    resolution as a running max down the columns of the image rotated so that ``u``
+    points along -y (one bilinear warp in, one out)."""
+    m, n = _to_rotated(depth.shape, dir_deg, scale)
+    occ = _occlusion_rotated(depth, m, n, tan_e * mm_per_px / scale)
+    h, w = depth.shape
+    return cv2.warpAffine(occ, cv2.invertAffineTransform(m), (w, h), flags=cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT)
+
+
+def shadow_factors(depth: np.ndarray, mm_per_px: float, dirs_deg, tans, sat_mm: float,
+                   scale: float = SHADOW_SCALE) -> tuple[np.ndarray, np.ndarray]:
+    """Shadow darkness ``o_k / (o_k + sat_mm)`` per direction on a ``scale`` grid.
+
+    Returns ``(f, to_full)``: float32 ``(h', w', K)`` with ``h' = ceil(scale h)`` and the 2x3
+    map from full-resolution pixels to that grid (for ``cv2.warpAffine(..., WARP_INVERSE_MAP)``).
+    Pixel centres: full-resolution ``x`` is grid ``x' = scale (x + 1/2) - 1/2``.
+    """
+    h, w = depth.shape
+    hs, ws = max(1, math.ceil(h * scale)), max(1, math.ceil(w * scale))
+    # grid pixel (x', y') sits at full-resolution ((x' + 1/2) / scale - 1/2, ...)
+    from_grid = np.array([[1 / scale, 0, 0.5 / scale - 0.5], [0, 1 / scale, 0.5 / scale - 0.5]])
+    f = np.empty((hs, ws, len(dirs_deg)), np.float32)
+    for k, (phi, tan_e) in enumerate(zip(dirs_deg, tans)):
+        m, n = _to_rotated(depth.shape, float(phi), scale)
+        occ = _occlusion_rotated(depth, m, n, float(tan_e) * mm_per_px / scale)
+        # grid -> rotated square: m applied after from_grid
+        g2r = m[:, :2] @ from_grid[:, :2]
+        g2r = np.hstack([g2r, (m[:, :2] @ from_grid[:, 2] + m[:, 2])[:, None]])
+        o = cv2.warpAffine(occ, g2r, (ws, hs), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                           borderMode=cv2.BORDER_CONSTANT)
+        f[..., k] = o / (o + np.float32(sat_mm))
+    to_full = np.array([[scale, 0, 0.5 * scale - 0.5], [0, scale, 0.5 * scale - 0.5]])
+    return f, to_full
+
+
+class LutShader:
+    """Colour change of the membrane from a calibrated table (see the module docstring).
+
+    ``profile``: sensor profile at the resolution being rendered (its ``shading.table``
+    is read); ``maps`` is accepted for the shader interface and unused.
+    """
+
+    name = "lut"
+
+    def __init__(self, profile, maps=None, table: dict | None = None):
+        self.profile = profile
+        t = table if table is not None else load_table(table_path(profile))
+        self.table = t["table"]
+        self.nb = self.table.shape[0]
+        # the three spatial terms as separate 3-channel tables, each remapped once per frame
+        self._tables = [np.ascontiguousarray(self.table[..., 3 * k:3 * k + 3]) for k in range(3)]
+        self.shadow = t if "shadow_rgb" in t else None
+        x, y = pixel_grid_mm(profile)
+        fw, fh = profile.field_mm
+        h, w = profile.shape
+        self.xn = np.ascontiguousarray(np.broadcast_to(x / (fw / 2.0), (h, w)), dtype=np.float32)
+        self.yn = np.ascontiguousarray(np.broadcast_to(y / (fh / 2.0), (h, w)), dtype=np.float32)
+        # 1 px for the 3x3 gradient stencil, 1 more so the box's border is flat for sure
+        self.margin_px = 2
+
+    def delta(self, depth_mm: np.ndarray, margin_px: int = 0):
+        """``(roi, delta)``: slices of the shaded box and float32 ``(h, w, 3)`` DN change there; None if flat.
+
+        The table is looked up only over the imprint's box; the shadows reach further,
+        up to the deepest point's height over the flattest grazing slope."""
+        margin = self.margin_px + margin_px
+        roi = imprint_roi(depth_mm, margin)
+        if roi is None:
+            return None
+        mm = self.profile.image.mm_per_px
+        lut = self.shade_table(depth_mm[roi], self.xn[roi], self.yn[roi])
+        if self.shadow is None:
+            return roi, lut
+        s = self.shadow
+        reach = int(math.ceil(float(depth_mm[roi].max()) / max(float(np.min(s["shadow_tan"])), 1e-3) / mm))
+        big = imprint_roi(depth_mm, margin + reach)
+        d = depth_mm[big]
+        out = self.shade_shadows(d)
+        out[roi[0].start - big[0].start:roi[0].stop - big[0].start,
+            roi[1].start - big[1].start:roi[1].stop - big[1].start] += lut
+        return big, out
+
+    def shade(self, d: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
+        """Colour change float32 ``(h, w, 3)`` DN of imprint ``d`` (mm) at positions ``xn, yn`` (-1..1)."""
+        out = self.shade_table(d, xn, yn)
+        if self.shadow is not None:
+            out += self.shade_shadows(d)
+        return out
+
+    def shade_shadows(self, d: np.ndarray) -> np.ndarray:
+        """The shadow terms alone: float32 ``(h, w, 3)`` DN (computed at half resolution)."""
+        s = self.shadow
+        mm = self.profile.image.mm_per_px
+        f, to_full = shadow_factors(d, mm, s["shadow_dirs_deg"], s["shadow_tan"], s["shadow_sat_mm"])
+        hs, ws, k = f.shape
+        small = (f.reshape(-1, k) @ s["shadow_rgb"]).reshape(hs, ws, 3)
+        h, w = d.shape
+        return cv2.warpAffine(small, to_full, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                              borderMode=cv2.BORDER_REPLICATE)
+
+    def shade_table(self, d: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
+        """The table's colour change alone: float32 ``(h, w, 3)`` DN."""
+        mm = self.profile.image.mm_per_px
+        nx, ny = normal_xy(d, mm)
+        half = float((self.nb - 1) / 2.0)
+        cv2.multiply(nx, half, nx)
+        cv2.add(nx, half, nx)
+        cv2.multiply(ny, half, ny)
+        cv2.add(ny, half, ny)
+        m1, m2 = cv2.convertMaps(nx, ny, cv2.CV_16SC2)   # fixed-point maps: three remaps share them
+        t0, t1, t2 = self._tables
+        out = cv2.remap(t0, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        c = cv2.remap(t1, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out += c * xn[..., None]
+        c = cv2.remap(t2, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out += c * yn[..., None]
+        return out

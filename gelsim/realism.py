@@ -1,0 +1,360 @@
+"""Realism against real GelSight frames: data packs, image metrics, ball presses, scores.
+
+A *data pack* is an ``.npz`` of real ball presses in the format of taxim's
+calibration set (Si and Yuan, RA-L 2022; PyPI ``taxim`` 1.4.1, MIT licence):
+
+* ``f0``            uint8 ``(H, W, 3)``: the gel with nothing touching it;
+* ``imgs``          uint8 ``(N, H, W, 3)``: one frame per press of a ball;
+* ``touch_center``  ``(N, 2)``: contact centre ``(x, y)`` in pixels;
+* ``touch_radius``  ``(N,)``: contact radius in pixels.
+
+Channel order: such packs are written from OpenCV, so colours are stored BGR.
+For taxim's GelSight R1.5 pack this was checked: taxim's own simulator writes
+``f0`` with ``cv2.imwrite`` (which expects BGR). Data loaded here is converted
+to RGB, the order of every gelsim image.
+
+Metrics (0-255 images): SSIM as in Wang et al. 2004 (Gaussian window 11 px,
+sigma 1.5, K1 0.01, K2 0.03, mean over the three channels and over the pixels
+whose window lies inside the image), PSNR and L1 (mean absolute error). They are
+computed on a 400x400 crop centred on the contact (Taxim's protocol), inside the
+disk of 1.5 contact radii (the *contact*), and as *skill*, ``1 - MSE(sim, real) /
+MSE(background, real)`` inside that disk: 0 for the background alone, 1 for a
+perfect prediction.
+"""
+from __future__ import annotations
+
+import io
+import math
+import os
+import subprocess
+import sys
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .errors import GelsimError
+
+TAXIM_VERSION = "1.4.1"
+TAXIM_PACK_MEMBER = "taxim/calib/gelsight/dataPack.npz"
+R15_MM_PER_PX = 0.0295       # taxim's calib/gelsight/params.json
+R15_BALL_DIAMETER_MM = 4.0   # taxim's calibration ball
+CROP_PX = 400                # Taxim's paper compares 400x400 contact crops
+DISK_RADII = 1.5             # the contact disk reaches 1.5 contact radii: the gel's rim and shadows lie inside
+REQUIRED_KEYS = ("f0", "imgs", "touch_center", "touch_radius")
+FRAME_SETS = ("even", "odd", "all")
+
+
+# --------------------------------------------------------------------------------------
+# Data packs
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DataPack:
+    """Real ball presses. ``f0`` uint8 ``(H, W, 3)`` RGB; ``imgs`` uint8 ``(N, H, W, 3)`` RGB;
+    ``centers_px`` float64 ``(N, 2)`` (x, y); ``radii_px`` float64 ``(N,)``; ``source`` the file."""
+    f0: np.ndarray
+    imgs: np.ndarray
+    centers_px: np.ndarray
+    radii_px: np.ndarray
+    source: str = ""
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.f0.shape[:2]
+
+    def select(self, frames: str) -> list[int]:
+        """Indices of ``frames``: "even" (0, 2, ...), "odd" (1, 3, ...) or "all"."""
+        n = len(self.imgs)
+        if frames == "even":
+            return list(range(0, n, 2))
+        if frames == "odd":
+            return list(range(1, n, 2))
+        if frames == "all":
+            return list(range(n))
+        raise GelsimError(f"frames {frames!r} is not one of {', '.join(FRAME_SETS)}; pick one")
+
+
+def check_datapack(data: dict, where: str = "data pack", channel_order: str = "bgr") -> DataPack:
+    """Validate the arrays of a data pack (a mapping of the keys above) and convert to RGB."""
+    missing = [k for k in REQUIRED_KEYS if k not in data]
+    if missing:
+        raise GelsimError(f"{where} lacks {', '.join(missing)}; a data pack needs {', '.join(REQUIRED_KEYS)}")
+    if channel_order not in ("bgr", "rgb"):
+        raise GelsimError(f"channel order {channel_order!r} is unknown; give 'bgr' or 'rgb'")
+    f0 = np.asarray(data["f0"])
+    imgs = np.asarray(data["imgs"])
+    c = np.asarray(data["touch_center"], dtype=np.float64)
+    r = np.asarray(data["touch_radius"], dtype=np.float64)
+    if f0.ndim != 3 or f0.shape[2] != 3:
+        raise GelsimError(f"{where}: f0 has shape {f0.shape}; give one (H, W, 3) colour frame")
+    if imgs.ndim != 4 or imgs.shape[1:] != f0.shape:
+        raise GelsimError(f"{where}: imgs has shape {imgs.shape}, f0 {f0.shape}; give imgs as (N, H, W, 3) "
+                          "frames of f0's size")
+    n = imgs.shape[0]
+    if n == 0:
+        raise GelsimError(f"{where}: imgs holds no frame; give at least one ball press")
+    if c.shape != (n, 2):
+        raise GelsimError(f"{where}: touch_center has shape {c.shape}; give ({n}, 2) centres (x, y) px, one per frame")
+    if r.shape != (n,):
+        raise GelsimError(f"{where}: touch_radius has shape {r.shape}; give ({n},) radii in px, one per frame")
+    if not (np.all(np.isfinite(c)) and np.all(np.isfinite(r)) and np.all(r > 0)):
+        raise GelsimError(f"{where}: touch_center/touch_radius hold non-finite or non-positive values; fix them")
+    for name, a in (("f0", f0), ("imgs", imgs)):
+        if a.dtype != np.uint8:
+            if not np.issubdtype(a.dtype, np.number) or a.min() < 0 or a.max() > 255:
+                raise GelsimError(f"{where}: {name} has dtype {a.dtype} outside 0-255; give uint8 frames")
+    f0 = f0.astype(np.uint8)
+    imgs = imgs.astype(np.uint8)
+    if channel_order == "bgr":
+        f0 = np.ascontiguousarray(f0[..., ::-1])
+        imgs = np.ascontiguousarray(imgs[..., ::-1])
+    return DataPack(f0, imgs, c, r, where)
+
+
+def load_datapack(path: str | Path, channel_order: str = "bgr") -> DataPack:
+    """Load and validate a data pack ``.npz`` (see the module docstring); colours come out RGB."""
+    path = Path(path)
+    if not path.is_file():
+        raise GelsimError(f"data pack {path} not found; give an .npz with {', '.join(REQUIRED_KEYS)}")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files if k in REQUIRED_KEYS}
+    except (OSError, ValueError, zipfile.BadZipFile) as e:
+        raise GelsimError(f"data pack {path} cannot be read ({e}); give a numpy .npz file") from None
+    return check_datapack(data, str(path), channel_order)
+
+
+def cache_dir() -> Path:
+    """Where fetched data lives: ``$GELSIM_CACHE`` or ``~/.cache/gelsim`` (never the repository)."""
+    env = os.environ.get("GELSIM_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "gelsim"
+
+
+def r15_pack_path() -> Path:
+    """Path of the cached R1.5 data pack (it may not exist yet; see :func:`fetch_r15_pack`)."""
+    return cache_dir() / f"taxim-{TAXIM_VERSION}" / "dataPack.npz"
+
+
+def fetch_r15_pack() -> Path:
+    """The GelSight R1.5 data pack from taxim's wheel, downloaded once into the cache.
+
+    Runs ``pip download taxim==1.4.1 --no-deps`` (a 27 MB wheel) and extracts only
+    ``dataPack.npz``; taxim's code is never installed or imported.
+    """
+    out = r15_pack_path()
+    if out.is_file():
+        return out
+    wheel_dir = cache_dir() / "wheels"
+    wheels = sorted(wheel_dir.glob(f"taxim-{TAXIM_VERSION}-*.whl"))
+    if not wheels:
+        wheel_dir.mkdir(parents=True, exist_ok=True)
+        cmd = [sys.executable, "-m", "pip", "download", f"taxim=={TAXIM_VERSION}", "--no-deps",
+               "--only-binary", ":all:", "-d", str(wheel_dir)]
+        res = subprocess.run(cmd, capture_output=True, text=True)
+        wheels = sorted(wheel_dir.glob(f"taxim-{TAXIM_VERSION}-*.whl"))
+        if res.returncode != 0 or not wheels:
+            tail = (res.stderr or res.stdout).strip().splitlines()[-1:] or ["no output"]
+            raise GelsimError(f"could not download taxim {TAXIM_VERSION} ({tail[0]}); check the network or "
+                              f"give --datapack PATH to a local dataPack.npz")
+    try:
+        with zipfile.ZipFile(wheels[-1]) as z:
+            blob = z.read(TAXIM_PACK_MEMBER)
+    except (KeyError, zipfile.BadZipFile) as e:
+        raise GelsimError(f"{wheels[-1]} holds no readable {TAXIM_PACK_MEMBER} ({e}); delete it and retry") from None
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".tmp")
+    tmp.write_bytes(blob)
+    os.replace(tmp, out)
+    np.load(io.BytesIO(blob))  # fail now, not later, on a corrupt member
+    return out
+
+
+def resolve_datapack(path: str | Path | None) -> Path:
+    """``path`` if given, else the cached (fetched on demand) R1.5 pack."""
+    return Path(path) if path else fetch_r15_pack()
+
+
+# --------------------------------------------------------------------------------------
+# Metrics
+# --------------------------------------------------------------------------------------
+_SSIM_WIN = 11       # Wang et al. 2004: 11x11 circular-symmetric Gaussian, sigma 1.5
+_SSIM_SIGMA = 1.5
+_SSIM_K = (0.01, 0.03)
+
+
+def ssim(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean SSIM of two images (``(H, W)`` or ``(H, W, C)``, 0-255), averaged over channels and
+    over the pixels whose 11x11 window lies inside the image (H, W >= 11)."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    if a.shape != b.shape:
+        raise GelsimError(f"images have shapes {a.shape} and {b.shape}; compare images of one shape")
+    if min(a.shape[:2]) < _SSIM_WIN:
+        raise GelsimError(f"images of {a.shape[:2]} px are smaller than SSIM's {_SSIM_WIN} px window")
+    c1, c2 = (_SSIM_K[0] * 255) ** 2, (_SSIM_K[1] * 255) ** 2
+
+    def f(x):
+        return cv2.GaussianBlur(x, (_SSIM_WIN, _SSIM_WIN), _SSIM_SIGMA, borderType=cv2.BORDER_REFLECT)
+
+    mu_a, mu_b = f(a), f(b)
+    saa = f(a * a) - mu_a * mu_a
+    sbb = f(b * b) - mu_b * mu_b
+    sab = f(a * b) - mu_a * mu_b
+    s = ((2 * mu_a * mu_b + c1) * (2 * sab + c2)) / ((mu_a ** 2 + mu_b ** 2 + c1) * (saa + sbb + c2))
+    p = _SSIM_WIN // 2
+    return float(s[p:-p, p:-p].mean())
+
+
+def psnr(mse: float) -> float:
+    """PSNR in dB of a mean squared error on 0-255 images (inf for 0)."""
+    return float("inf") if mse <= 0 else float(10.0 * math.log10(255.0 ** 2 / mse))
+
+
+def crop_box(center_px, shape: tuple[int, int], size: int = CROP_PX) -> tuple[slice, slice]:
+    """Rows and columns of the ``size`` square centred on ``center_px`` (x, y), shifted to lie inside."""
+    h, w = shape
+    sh, sw = min(size, h), min(size, w)
+    x0 = int(round(center_px[0])) - sw // 2
+    y0 = int(round(center_px[1])) - sh // 2
+    x0 = min(max(x0, 0), w - sw)
+    y0 = min(max(y0, 0), h - sh)
+    return slice(y0, y0 + sh), slice(x0, x0 + sw)
+
+
+def disk_mask(center_px, radius_px: float, shape: tuple[int, int]) -> np.ndarray:
+    """bool ``(H, W)``: pixel centres within ``radius_px`` of ``center_px`` (x, y)."""
+    h, w = shape
+    y, x = np.ogrid[:h, :w]
+    return (x - center_px[0]) ** 2 + (y - center_px[1]) ** 2 <= radius_px ** 2
+
+
+def frame_metrics(sim: np.ndarray, real: np.ndarray, center_px, radius_px: float) -> dict:
+    """Metrics of one predicted frame against the real one (uint8 or float ``(H, W, 3)``, 0-255).
+
+    Returns ``{"crop": {ssim, psnr, l1}, "contact": {ssim, psnr, l1}, "contact_mse"}``.
+    """
+    sim = np.asarray(sim, np.float64)
+    real = np.asarray(real, np.float64)
+    if sim.shape != real.shape:
+        raise GelsimError(f"simulated frame is {sim.shape}, real {real.shape}; render at the real frame's size")
+    shape = real.shape[:2]
+    cb = crop_box(center_px, shape)
+    dc = sim[cb] - real[cb]
+    crop = {"ssim": ssim(sim[cb], real[cb]), "psnr": psnr(float((dc ** 2).mean())), "l1": float(np.abs(dc).mean())}
+    rd = DISK_RADII * radius_px
+    m = disk_mask(center_px, rd, shape)
+    dd = sim[m] - real[m]
+    mse = float((dd ** 2).mean())
+    rows, cols = np.flatnonzero(m.any(axis=1)), np.flatnonzero(m.any(axis=0))
+    bb = slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
+    contact = {"ssim": ssim(sim[bb], real[bb]), "psnr": psnr(mse), "l1": float(np.abs(dd).mean())}
+    return {"crop": crop, "contact": contact, "contact_mse": mse}
+
+
+def summarize(per_frame: list[dict], base_frame: list[dict]) -> dict:
+    """Means over frames of :func:`frame_metrics` results; PSNR from the mean MSE would weigh frames
+    unevenly, so PSNR is the mean of the per-frame PSNRs (as the other metrics). Skill is
+    ``1 - sum MSE(sim) / sum MSE(background)`` over all frames' disks."""
+    def mean(rows, sect, key):
+        return float(np.mean([r[sect][key] for r in rows]))
+
+    def block(rows):
+        return {s: {k: mean(rows, s, k) for k in ("ssim", "psnr", "l1")} for s in ("crop", "contact")}
+
+    out = block(per_frame)
+    sim_mse = float(np.sum([r["contact_mse"] for r in per_frame]))
+    bg_mse = float(np.sum([r["contact_mse"] for r in base_frame]))
+    out["skill"] = 1.0 - sim_mse / bg_mse if bg_mse > 0 else 0.0
+    out["baseline"] = block(base_frame)
+    out["baseline"]["skill"] = 0.0
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# Ball presses
+# --------------------------------------------------------------------------------------
+def ball_indentation_mm(contact_radius_mm: float, ball_diameter_mm: float) -> float:
+    """Depth of a sphere whose cap through the gel plane has ``contact_radius_mm``: ``R - sqrt(R^2 - a^2)``
+    (a contact wider than the ball is clipped to the ball's radius)."""
+    r = ball_diameter_mm / 2.0
+    a = min(contact_radius_mm, r)
+    return r - math.sqrt(max(r * r - a * a, 0.0))
+
+
+def ball_depth(profile, center_px, radius_px: float, ball_diameter_mm: float, fidelity="balanced") -> np.ndarray:
+    """Imprint of a ball pressed until its contact has ``radius_px``: float32 ``(H, W)`` mm.
+
+    The sphere (``gelsim.indenters.sphere``) is centred on ``center_px`` (x, y) and
+    pressed to the depth that gives that contact radius geometrically; the gel's
+    spread around it comes from :func:`gelsim.gel.press` (pyramid model at the
+    profile's resolution for ``balanced``).
+    """
+    from .gel import press
+    from .indenters import sphere
+
+    h, w = profile.shape
+    mm = profile.image.mm_per_px
+    cx = (center_px[0] - (w - 1) / 2.0) * mm
+    cy = (center_px[1] - (h - 1) / 2.0) * mm
+    prot = sphere(ball_diameter_mm, profile, center_mm=(cx, cy))
+    d = ball_indentation_mm(radius_px * mm, ball_diameter_mm)
+    return press(prot, profile, fidelity, depth_mm=d).depth_mm
+
+
+def evaluate(profile, pack: DataPack, frames: str = "odd", *, ball_diameter_mm: float = R15_BALL_DIAMETER_MM,
+             backend: str = "fast", keep: int | None = None) -> dict:
+    """Render each selected press with ``profile`` (noiseless: the expected frame) and score it.
+
+    ``profile.image.mm_per_px`` sets the scale (pass a profile replaced with the pack's
+    scale). Returns :func:`summarize`'s dict plus ``"frames"`` (count) and
+    ``"ms_per_frame"`` (render time, imprint included); with ``keep`` the frame
+    index ``keep`` is also returned as ``"example": (real, sim)`` uint8 RGB.
+    """
+    import time
+
+    from .optics import Renderer
+
+    if profile.shape != pack.shape:
+        raise GelsimError(f"profile {profile.name} renders {profile.shape} px but the data pack's frames are "
+                          f"{pack.shape}; use a profile of the pack's size")
+    idx = pack.select(frames)
+    ren = Renderer(profile, backend)
+    sims, bases = [], []
+    example = None
+    t = 0.0
+    try:
+        for i in idx:
+            t0 = time.perf_counter()
+            depth = ball_depth(profile, pack.centers_px[i], pack.radii_px[i], ball_diameter_mm)
+            sim = ren.render(depth, None, noise=False)
+            t += time.perf_counter() - t0
+            real = pack.imgs[i]
+            sims.append(frame_metrics(sim, real, pack.centers_px[i], pack.radii_px[i]))
+            bases.append(frame_metrics(pack.f0, real, pack.centers_px[i], pack.radii_px[i]))
+            if keep is not None and i == keep:
+                example = (real, sim)
+    finally:
+        ren.close()
+    out = summarize(sims, bases)
+    out["frames"] = len(idx)
+    out["ms_per_frame"] = 1000.0 * t / max(1, len(idx))
+    if example is not None:
+        out["example"] = example
+    return out
+
+
+def side_by_side(real: np.ndarray, sim: np.ndarray, gain: float = 3.0) -> np.ndarray:
+    """uint8 RGB ``(H, 3 W, 3)``: real, simulated and ``gain`` x |difference|, side by side."""
+    diff = np.clip(np.abs(real.astype(np.float32) - sim.astype(np.float32)) * gain, 0, 255).astype(np.uint8)
+    return np.hstack([real, sim, diff])
+
+
+def write_png(path: str | Path, rgb: np.ndarray) -> None:
+    """Write an RGB image as PNG through a temporary name."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp.png")
+    if not cv2.imwrite(str(tmp), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
+        raise GelsimError(f"cannot write {path}; check that its folder exists and is writable")
+    os.replace(tmp, path)
