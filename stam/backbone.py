@@ -68,14 +68,16 @@ def feature_size(image_size: int) -> int:
 class AlexNetHead(nn.Module):
     """fc6-fc8 with dropout, on a ``B x C x h x w`` map -> ``B x num_classes`` logits.
 
+    ``hidden`` is the fc6/fc7 width (default 4096 x width).
+
     Like torchvision, the map is adaptively average-pooled to ``pool x pool`` first
     (6 x 6 at the paper's setting, where it is a no-op for 224 px inputs).
     """
 
     def __init__(self, in_channels: int, num_classes: int, width: float = 1.0,
-                 pool: int = ALEXNET_POOL, dropout: float = 0.5):
+                 pool: int = ALEXNET_POOL, dropout: float = 0.5, hidden: int | None = None):
         super().__init__()
-        hidden = scaled(ALEXNET_HIDDEN, width)
+        hidden = hidden or scaled(ALEXNET_HIDDEN, width)
         self.pool = nn.AdaptiveAvgPool2d((pool, pool))
         self.classifier = nn.Sequential(
             nn.Dropout(dropout), nn.Linear(in_channels * pool * pool, hidden), nn.ReLU(inplace=True),

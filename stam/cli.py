@@ -53,7 +53,7 @@ def _pretrain(args) -> int:
     from .train import pretrain
 
     res = pretrain(args.data, args.out, width=args.width, image_size=args.image_size, epochs=args.epochs,
-                   batch_size=args.batch_size, lr=args.lr, seed=args.seed, contact_only=not args.all_frames,
+                   batch_size=args.batch_size, lr=args.lr, optimizer=args.optimizer, seed=args.seed, contact_only=not args.all_frames,
                    device=args.device, progress=not args.quiet, log=None if args.json or args.quiet else print)
     if args.json:
         print_json(res)
@@ -151,7 +151,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--image-size", type=int, default=224, help="input side in px")
     s.add_argument("--epochs", type=int, default=10, help="epochs")
     s.add_argument("--batch-size", type=int, default=64, help="frames per step")
-    s.add_argument("--lr", type=float, default=0.01, help="SGD learning rate (momentum 0.9, cosine decay)")
+    s.add_argument("--lr", type=float, default=0.001, help="learning rate (cosine decay)")
+    s.add_argument("--optimizer", choices=("adam", "sgd"), default="adam", help="optimizer (sgd: momentum 0.9)")
     s.add_argument("--seed", type=int, default=0, help="random seed")
     s.add_argument("--all-frames", action="store_true", help="also use frames before the detected contact")
     s.add_argument("--device", default="auto", help="auto, cpu or cuda")

@@ -29,7 +29,7 @@ import torch
 from gelsim.errors import GelsimError
 
 from .backbone import AlexNetFeatures
-from .data import TactileDataset, backbone_features
+from .data import DEFAULT_ONSET_THRESHOLD, SPLITS, TactileDataset, backbone_features
 from .evaluate import evaluate
 from .train import FIELDS, load_backbone, load_checkpoint, load_config, pretrain, save_atomic, train
 
@@ -46,7 +46,7 @@ PAPER_TABLES = {
               "stam": [72.00, 72.20, 75.80, 76.61, 80.80, 80.20]},
 }
 PAPER_FRAMES = [2, 3, 4, 5, 6, 7]
-PRETRAIN_KEYS = ("width", "image_size", "epochs", "batch_size", "lr", "contact_only")
+PRETRAIN_KEYS = ("width", "image_size", "epochs", "batch_size", "lr", "optimizer", "contact_only", "frame_stride")
 SWEEP_KEYS = ("models", "frames", "settings", "seeds")
 
 
@@ -104,6 +104,10 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     data = TactileDataset(data_dir)
+    for split in SPLITS:
+        if not data.split(split):
+            raise GelsimError(f"dataset {data_dir} has no {split!r} sequences; generate at least 10 sequences "
+                              "per fabric for the 7:2:1 split")
     shortest = min(s.num_frames for s in data.sequences)
     if max(frames) > shortest or min(frames) < 1:
         raise GelsimError(f"frames {frames} outside 1..{shortest} (the shortest sequence); choose smaller n")
@@ -111,13 +115,13 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
     t0 = time.perf_counter()
     pre = cfg["pretrain"]
     size = int(cfg["train"].get("image_size", pre.get("image_size", 224)))
-    onsets = data.onset_agreement(size, float(cfg["train"].get("onset_threshold", 6.0)))
+    onsets = data.onset_agreement(size, float(cfg["train"].get("onset_threshold", DEFAULT_ONSET_THRESHOLD)))
     (out / "onsets.json").write_text(json.dumps(onsets, indent=1))
     if log:
         log(f"onset detection: exact {onsets['exact']}/{onsets['sequences']}, within 1 frame "
             f"{onsets['within_1']}, not detected {onsets['not_detected']}")
     pt = pretrain(data_dir, out / "pretrain", data=data, progress=False, log=log,
-                  onset_threshold=float(cfg["train"].get("onset_threshold", 6.0)),
+                  onset_threshold=float(cfg["train"].get("onset_threshold", DEFAULT_ONSET_THRESHOLD)),
                   **{k: pre[k] for k in PRETRAIN_KEYS if k in pre})
     t_pre = time.perf_counter() - t0
     if log:

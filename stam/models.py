@@ -114,7 +114,8 @@ class SequenceModel(nn.Module):
     def __init__(self, name: str, n_frames: int, num_classes: int, *, width: float = 1.0,
                  image_size: int = 224, fusion: str = "mean_logits", modules: int = 10,
                  combine: str = "mean", qk_reduction: int = 8, residual_gain: str = "learned",
-                 sa_batchnorm: bool = False, dropout: float = 0.5, pool: int | None = None):
+                 sa_batchnorm: bool = False, dropout: float = 0.5, pool: int | None = None,
+                 hidden: int = 0):
         super().__init__()
         if name not in MODEL_NAMES:
             raise GelsimError(f"unknown model {name!r}; choose one of {', '.join(MODEL_NAMES)}")
@@ -141,7 +142,7 @@ class SequenceModel(nn.Module):
         else:
             self.temporal, self.project = None, None
         # Pool to the backbone's own map size unless told: 6 x 6 at 224 px (torchvision's value).
-        self.head = AlexNetHead(c, num_classes, width, pool or fs, dropout)
+        self.head = AlexNetHead(c, num_classes, width, pool or fs, dropout, hidden or None)
 
     def frame_features(self, x: torch.Tensor) -> torch.Tensor:
         """``B x n x 3 x S x S`` images -> ``B x n x C x h x w`` backbone features."""
@@ -187,7 +188,7 @@ def build(name: str, n_frames: int, num_classes: int, **options) -> SequenceMode
     Options (see the module docstring): width (channel multiplier, 1.0 = AlexNet),
     image_size (px, square input; 224), fusion, modules (10), combine, qk_reduction (8),
     residual_gain, sa_batchnorm, dropout (0.5), pool (fc6 input map side; default the
-    backbone's map side).
+    backbone's map side), hidden (fc6/fc7 width; 0 = 4096 x width).
     """
     return SequenceModel(name, n_frames, num_classes, **options)
 

@@ -18,7 +18,7 @@ SYNTH_FPS_HZ = 30.0
 
 def make_synthetic_dataset(out: str | Path, num_fabrics: int = 4, seqs_per_fabric: int = 10,
                            num_frames: int = 12, size: tuple[int, int] = (96, 72), seed: int = 0,
-                           noise_grey: float = 2.0, fmt: str = "h264", complete: bool = True) -> Path:
+                           noise_grey: float = 0.8, fmt: str = "h264", complete: bool = True) -> Path:
     """Write a dataset to ``out``; ``size`` is (width, height) px. Returns ``out``.
 
     Splits are 7:2:1 by sequence within each fabric (for 10 sequences per fabric: 7, 2, 1).

@@ -26,7 +26,7 @@ width = 0.25
 image_size = 96
 epochs = 2
 batch_size = 32
-lr = 0.01
+lr = 0.002
 [train]
 image_size = 96
 width = 0.25

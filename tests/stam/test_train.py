@@ -11,7 +11,7 @@ from stam.train import load_checkpoint, load_config, train
 
 def _cfg(synth, out, **kw):
     base = {"data": str(synth), "out": str(out), "model": "stam", "frames": 3, "image_size": 96, "width": 0.25,
-            "epochs": 2, "batch_size": 16, "optimizer": "adam", "lr": 0.002, "lr_schedule": "constant",
+            "epochs": 2, "batch_size": 8, "optimizer": "adam", "lr": 0.001, "lr_schedule": "constant",
             "progress": False}
     return load_config(None, base | kw)
 
