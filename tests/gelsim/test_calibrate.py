@@ -1,0 +1,135 @@
+"""gelsim.calibrate: a synthetic data pack rendered by gelsim with known parameters is fitted back."""
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from gelsim.calibrate import calibrate, fit_background, fit_noise
+from gelsim.cli import main
+from gelsim.errors import GelsimError
+from gelsim.optics import Renderer
+from gelsim.realism import ball_depth, check_datapack, evaluate, load_datapack
+from gelsim.sensor import load_profile
+
+TRUE_THICKNESS_MM = 3.0
+TRUE_READ_SIGMA = 2.0
+BALL_MM = 4.0
+LIGHT_AZIMUTHS = (90.0, 210.0, 330.0)
+
+
+def _truth():
+    """A 160x120 phong sensor with pure-colour LEDs at known azimuths and a known gel thickness."""
+    base = load_profile("vitac").with_resolution(160, 120)
+    lights = tuple(dataclasses.replace(l, color_rgb=tuple(float(i == k) for i in range(3)), azimuth_deg=az)
+                   for k, (l, az) in enumerate(zip(base.lights, LIGHT_AZIMUTHS)))
+    return dataclasses.replace(
+        base, lights=lights,
+        gel=dataclasses.replace(base.gel, thickness_mm=TRUE_THICKNESS_MM, membrane_smoothing_mm=0.06,
+                                max_indentation_mm=2.0),
+        markers=dataclasses.replace(base.markers, enabled=False),
+        noise=dataclasses.replace(base.noise, read_sigma_dn=TRUE_READ_SIGMA, shot_gain=0.0),
+        camera=dataclasses.replace(base.camera, blur_sigma_px=0.0))
+
+
+def _pack_dict(truth, n=12, seed=0):
+    """Data-pack arrays (colours stored BGR, as OpenCV writes them) of ``n`` ball presses."""
+    rng = np.random.default_rng(seed)
+    h, w = truth.shape
+    ren = Renderer(truth, seed=seed)
+    centers = np.stack([rng.uniform(35, w - 35, n), rng.uniform(35, h - 35, n)], axis=1).round()
+    radii = rng.uniform(11, 15, n).round()
+    imgs = np.stack([ren.render(ball_depth(truth, c, r, BALL_MM), None, seed=i)
+                     for i, (c, r) in enumerate(zip(centers, radii))])
+    f0 = ren.render(None, None, seed=1000)
+    return {"f0": f0[..., ::-1], "imgs": imgs[..., ::-1], "touch_center": centers, "touch_radius": radii}
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    truth = _truth()
+    d = tmp_path_factory.mktemp("cal")
+    data = _pack_dict(truth)
+    np.savez(d / "pack.npz", **data)
+    pack = load_datapack(d / "pack.npz")
+    grid = {"thickness_mm": (1.0, TRUE_THICKNESS_MM), "membrane_smoothing_mm": (0.06,), "shadow_tan": (0.0,)}
+    rep = calibrate(pack, load_profile("vitac"), d / "fit.toml", frames="even",
+                    mm_per_px=truth.image.mm_per_px, ball_diameter_mm=BALL_MM, grid=grid)
+    return truth, pack, rep, d
+
+
+def test_calibration_recovers_gel_thickness_noise_and_light_azimuths(fitted):
+    """Known thickness picked from the grid; read noise within 20%; each channel's light azimuth
+    within 12 degrees of the LED that made it."""
+    truth, pack, rep, d = fitted
+    assert rep["best"]["thickness_mm"] == TRUE_THICKNESS_MM
+    by_t = {t["thickness_mm"]: t["cv_mse"] for t in rep["trials"]}
+    assert by_t[TRUE_THICKNESS_MM] < 0.7 * by_t[1.0]
+    assert abs(rep["noise"]["read_sigma_dn"] - TRUE_READ_SIGMA) < 0.2 * TRUE_READ_SIGMA
+    assert rep["noise"]["shot_gain"] == pytest.approx(0.0, abs=0.01)
+    prof = load_profile(d / "fit.toml")
+    assert prof.shading.model == "lut" and prof.gel.thickness_mm == TRUE_THICKNESS_MM
+    for light, az in zip(prof.lights, LIGHT_AZIMUTHS):
+        err = (light.azimuth_deg - az + 180.0) % 360.0 - 180.0
+        assert abs(err) < 12.0, (light.name, light.azimuth_deg, az)
+
+
+def test_fitted_profile_reproduces_held_out_frames(fitted):
+    """Fitted on even frames, the profile predicts the odd ones nearly to the noise floor."""
+    truth, pack, rep, d = fitted
+    prof = load_profile(d / "fit.toml")
+    res = evaluate(prof, pack, "odd", ball_diameter_mm=BALL_MM)
+    assert res["skill"] > 0.9
+    assert res["contact"]["psnr"] > res["baseline"]["contact"]["psnr"] + 8.0
+    # noise of 2 DN in both frames bounds the PSNR at about 10 log10(255^2 / 4) = 42 dB
+    assert res["contact"]["psnr"] < 44.0
+
+
+def test_background_is_smoothed_half_resolution_and_noise_fit_ignores_contacts():
+    rng = np.random.default_rng(1)
+    clean = np.full((60, 80, 3), 120.0)
+    f0 = np.clip(clean + rng.normal(0, 3, clean.shape), 0, 255).astype(np.uint8)
+    small = fit_background(f0)
+    assert small.shape == (30, 40, 3) and small.dtype == np.uint8
+    assert small.std() < f0.std() / 2           # smoothed
+    imgs = np.clip(clean[None] + rng.normal(0, 3, (4,) + f0.shape), 0, 255).astype(np.uint8)
+    imgs[:, 20:40, 30:50] = 255                 # a "contact" that the noise fit must skip
+    pack = check_datapack({"f0": f0, "imgs": imgs, "touch_center": np.tile([[40.0, 30.0]], (4, 1)),
+                           "touch_radius": np.full(4, 9.0)}, channel_order="rgb")
+    read, shot = fit_noise(pack, [0, 1, 2, 3])
+    # imgs - f0 holds two independent draws of 3 DN noise; the fit reports one frame's
+    assert read == pytest.approx(3.0, rel=0.1)
+    assert shot == 0.0
+
+
+def test_calibrate_bad_input(tmp_path, fitted):
+    truth, pack, rep, d = fitted
+    with pytest.raises(GelsimError, match=r"\.toml"):
+        calibrate(pack, load_profile("vitac"), tmp_path / "x.json", mm_per_px=truth.image.mm_per_px)
+    with pytest.raises(GelsimError, match="does not exist"):
+        calibrate(pack, load_profile("vitac"), tmp_path / "no" / "x.toml", mm_per_px=truth.image.mm_per_px)
+    few = dataclasses.replace(pack, imgs=pack.imgs[:3], centers_px=pack.centers_px[:3], radii_px=pack.radii_px[:3])
+    with pytest.raises(GelsimError, match="at least 4"):
+        calibrate(few, load_profile("vitac"), tmp_path / "x.toml", mm_per_px=truth.image.mm_per_px)
+
+
+def test_cli_calibrate_and_realism(fitted, tmp_path, capsys):
+    truth, pack, rep, d = fitted
+    bad = dict(np.load(d / "pack.npz"))
+    del bad["touch_radius"]
+    np.savez(tmp_path / "bad.npz", **bad)
+    assert main(["calibrate", str(tmp_path / "bad.npz"), "--out", str(tmp_path / "p.toml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "touch_radius" in err
+    out_png = tmp_path / "side.png"
+    code = main(["realism", "--profile", str(d / "fit.toml"), "--datapack", str(d / "pack.npz"), "--frames", "odd",
+                 "--mm-per-px", str(truth.image.mm_per_px), "--out", str(out_png), "--json"])
+    assert code == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert set(doc["crop"]) == {"ssim", "psnr", "l1"} and set(doc["contact"]) == {"ssim", "psnr", "l1"}
+    assert doc["frames"] == 6 and doc["skill"] > 0.9 and doc["baseline"]["skill"] == 0.0
+    import cv2
+    img = cv2.imread(str(out_png))
+    assert img.shape == (truth.shape[0], 3 * truth.shape[1], 3)

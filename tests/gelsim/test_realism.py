@@ -1,0 +1,154 @@
+"""gelsim.realism metrics and data packs; the LUT shader; the real R1.5 pack (slow, cached only)."""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from gelsim.errors import GelsimError
+from gelsim.optics.lut import LutShader, occlusion
+from gelsim.realism import (ball_indentation_mm, check_datapack, crop_box, disk_mask, frame_metrics, load_datapack,
+                            psnr, r15_pack_path, ssim, summarize)
+from gelsim.sensor import load_profile
+
+
+def _smooth_image(seed=0, shape=(120, 160, 3)):
+    rng = np.random.default_rng(seed)
+    return cv2.GaussianBlur(rng.uniform(40, 220, shape), (0, 0), 2.0)
+
+
+def test_ssim_identity_offset_and_noise():
+    a = _smooth_image()
+    assert ssim(a, a) == pytest.approx(1.0, abs=1e-9)
+    # a constant offset only changes the luminance term: 2 mu (mu + d) + C1 over mu^2 + (mu + d)^2 + C1
+    mu, d, c1 = 130.0, 20.0, (0.01 * 255) ** 2
+    flat = np.full((40, 40), mu)
+    assert ssim(flat, flat + d) == pytest.approx((2 * mu * (mu + d) + c1) / (mu ** 2 + (mu + d) ** 2 + c1), rel=1e-6)
+    noisy = a + np.random.default_rng(1).normal(0, 20, a.shape)
+    assert 0.2 < ssim(a, noisy) < 0.9
+    with pytest.raises(GelsimError, match="shapes"):
+        ssim(a, a[:-1])
+
+
+def test_psnr_and_metrics_on_known_pairs():
+    assert psnr(25.0) == pytest.approx(10 * math.log10(255 ** 2 / 25.0))
+    assert psnr(0.0) == math.inf
+    real = _smooth_image(shape=(480, 640, 3))
+    sim = real + 5.0
+    m = frame_metrics(sim, real, (320, 240), 60)
+    assert m["crop"]["l1"] == pytest.approx(5.0) and m["contact"]["l1"] == pytest.approx(5.0)
+    assert m["contact"]["psnr"] == pytest.approx(psnr(25.0))
+    bg = real.copy()
+    bg[disk_mask((320, 240), 60, real.shape[:2])] += 10.0
+    base = frame_metrics(bg, real, (320, 240), 60)
+    s = summarize([m], [base])
+    inside = disk_mask((320, 240), 90, real.shape[:2])
+    inner = disk_mask((320, 240), 60, real.shape[:2])
+    want_bg_mse = 100.0 * inner.sum() / inside.sum()
+    assert base["contact_mse"] == pytest.approx(want_bg_mse)
+    assert s["skill"] == pytest.approx(1 - 25.0 / want_bg_mse)
+    assert s["baseline"]["skill"] == 0.0
+    perfect = summarize([frame_metrics(real, real, (320, 240), 60)], [base])
+    assert perfect["skill"] == pytest.approx(1.0)
+
+
+def test_crop_stays_inside_and_disk_area():
+    rows, cols = crop_box((10, 470), (480, 640))
+    assert (rows.stop - rows.start, cols.stop - cols.start) == (400, 400)
+    assert rows.start >= 0 and rows.stop <= 480 and cols.start == 0
+    rows, cols = crop_box((320, 240), (480, 640))
+    assert (rows.start, cols.start) == (40, 120)
+    assert disk_mask((100, 100), 30, (200, 200)).sum() == pytest.approx(math.pi * 900, rel=0.01)
+
+
+def test_ball_indentation_from_contact_radius():
+    assert ball_indentation_mm(0.0, 4.0) == 0.0
+    assert ball_indentation_mm(1.2, 4.0) == pytest.approx(2.0 - math.sqrt(4.0 - 1.44))
+    assert ball_indentation_mm(5.0, 4.0) == pytest.approx(2.0)   # clipped at the ball's radius
+
+
+def _pack(n=3, h=40, w=50):
+    f0 = np.zeros((h, w, 3), np.uint8)
+    f0[..., 0], f0[..., 1], f0[..., 2] = 10, 20, 30
+    return {"f0": f0, "imgs": np.repeat(f0[None], n, 0), "touch_center": np.full((n, 2), 20.0),
+            "touch_radius": np.full(n, 5.0)}
+
+
+def test_datapack_channel_order_and_selection(tmp_path):
+    np.savez(tmp_path / "p.npz", **_pack(5))
+    p = load_datapack(tmp_path / "p.npz")
+    assert tuple(p.f0[0, 0]) == (30, 20, 10) and tuple(p.imgs[4, 3, 3]) == (30, 20, 10)   # BGR -> RGB
+    assert tuple(load_datapack(tmp_path / "p.npz", "rgb").f0[0, 0]) == (10, 20, 30)
+    assert p.select("even") == [0, 2, 4] and p.select("odd") == [1, 3] and p.select("all") == list(range(5))
+    with pytest.raises(GelsimError, match="even, odd, all"):
+        p.select("first")
+
+
+@pytest.mark.parametrize("change, match", [
+    (lambda d: d.pop("imgs"), "lacks imgs"),
+    (lambda d: d.pop("touch_center"), "lacks touch_center"),
+    (lambda d: d.update(imgs=d["imgs"][:, :-1]), "imgs has shape"),
+    (lambda d: d.update(touch_center=d["touch_center"][:-1]), r"touch_center has shape"),
+    (lambda d: d.update(touch_radius=np.zeros((3, 1))), "touch_radius has shape"),
+    (lambda d: d.update(touch_radius=np.array([5.0, -1.0, 5.0])), "non-positive"),
+    (lambda d: d.update(f0=d["f0"][..., :2]), "f0 has shape"),
+])
+def test_datapack_errors(change, match):
+    d = _pack()
+    change(d)
+    with pytest.raises(GelsimError, match=match):
+        check_datapack(d)
+
+
+def test_unreadable_datapack(tmp_path):
+    (tmp_path / "x.npz").write_text("not a zip")
+    with pytest.raises(GelsimError, match="cannot be read"):
+        load_datapack(tmp_path / "x.npz")
+    with pytest.raises(GelsimError, match="not found"):
+        load_datapack(tmp_path / "none.npz")
+
+
+def test_occlusion_falls_on_the_side_away_from_the_light():
+    d = np.zeros((101, 121), np.float32)
+    d[45:56, 55:66] = 1.0                      # a block centred at x = 60, y = 50
+    for ang, (cx, cy) in {0: (-1, 0), 90: (0, -1), 180: (1, 0), 270: (0, 1)}.items():
+        o = occlusion(d, 0.01, ang, 1.0)
+        ys, xs = np.nonzero(o > 0.05)
+        assert np.sign(round(xs.mean() - 60)) == cx and np.sign(round(ys.mean() - 50)) == cy, ang
+        # at 1 mm tall and a 45 degree ray, the shadow reaches 1 mm = 100 px at most
+        assert o.max() <= 1.0 + 1e-5
+
+
+def test_lut_shader_flat_is_zero_and_table_slope_is_followed():
+    prof = load_profile("vitac").with_resolution(80, 60)
+    nb = 41     # the calibration's bin count: the remap's 1/32-bin fixed-point steps stay below 0.5%
+    table = np.zeros((nb, nb, 9), np.float32)
+    u = np.linspace(-1, 1, nb)
+    table[..., 0] = 100.0 * u[None, :]          # red constant term follows nx
+    table[..., 5] = 50.0                         # blue grows with x position (not at n = 0: made 0 below)
+    table[nb // 2, nb // 2] = 0.0
+    sh = LutShader(prof, table={"table": table})
+    assert sh.delta(np.zeros(prof.shape, np.float32)) is None
+    h, w = prof.shape
+    ramp = np.tile((np.arange(w, dtype=np.float32) * prof.image.mm_per_px * 0.3)[None], (h, 1))
+    roi, out = sh.delta(ramp)
+    # surface slope 0.3 towards +x: normal nx = -0.3 / sqrt(1.09)
+    nx = -0.3 / math.sqrt(1.09)
+    assert np.median(out[5:-5, 5:-5, 0]) == pytest.approx(100.0 * nx, rel=0.005)
+    assert np.all(np.abs(out[..., 1]) < 1e-4)
+
+
+@pytest.mark.slow
+def test_r15_profile_beats_taxim_on_the_odd_frames():
+    """The shipped gelsight-r15 profile (fitted on even frames) against taxim 1.4.1 with shadows on the
+    odd frames: skill 0.834, contact PSNR 28.8 dB, contact L1 7.1 (REFERENCES.md)."""
+    from gelsim.realism import evaluate
+    path = r15_pack_path()
+    if not path.is_file():
+        pytest.skip("R1.5 data pack not cached; run `gelsim realism` once with network")
+    res = evaluate(load_profile("gelsight-r15"), load_datapack(path), "odd")
+    assert res["skill"] > 0.834
+    assert res["contact"]["psnr"] > 28.8 and res["contact"]["l1"] < 7.1
+    assert res["baseline"]["crop"]["ssim"] == pytest.approx(0.969, abs=0.002)
