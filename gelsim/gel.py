@@ -10,7 +10,7 @@ Two models, chosen by ``fidelity.imprint_model`` and computed on a grid of
 ``fidelity.imprint_scale`` times the image resolution (then resampled):
 
 ``"elastic"`` (reference)
-    Frictionless contact of a rigid (optionally Winkler-supported) object with an
+    Frictionless contact of a rigid (optionally fabric-supported, see below) object with an
     elastic layer of thickness ``h`` bonded to a rigid base. Surface displacement is
     ``u = K * p`` with ``K`` the layer's surface Green's function: the Boussinesq
     half-space part integrated exactly over each pixel (Love 1929) plus a smooth
@@ -21,18 +21,39 @@ Two models, chosen by ``fidelity.imprint_model`` and computed on a grid of
     (2 (1-nu)^2)`` the uniaxial-strain limit of a thin layer). Convolutions are linear
     (zero-padded FFT). The contact problem (``p >= 0``, gap ``>= 0``, ``p * gap = 0``, total
     force or approach prescribed) is solved with the constrained conjugate-gradient
-    method of Polonsky and Keer (Wear 1999). A fabric's through-thickness compliance
-    is a Winkler layer under the object's surface: it adds ``p / k_s`` to the gap.
+    method of Polonsky and Keer (Wear 1999).
+
+Fabric support (both models). A fabric's through-thickness compliance (Kawabata: 10-50%
+of its thickness lost under a few kPa) comes from the voids between fibres and yarns
+closing; the yarns themselves are stiff bundles that bridge those voids, so a load on one
+crown is spread over the neighbouring yarns instead of sinking that crown alone. We model
+the fabric as a Pasternak layer ``k_s w - k_s l^2 lap w = p`` under the object's surface:
+``k_s`` (compressive modulus / thickness) sets the mean compression ``p / k_s``, and the
+shear length ``l`` (about the fabric's thickness: the span over which the yarns share a
+load) makes it stiffer by ``1 + (q l)^2`` at wavenumber q. Texture finer than ``l`` (yarn
+crowns, 0.1-1 mm) therefore keeps most of its relief while the fabric as a whole
+compresses; a Winkler layer (``l = 0``, each point on its own spring) flattens every scale
+alike, which no GelSight image of cloth shows. In the elastic model the support adds
+``w = K_s * p`` (kernel ``K0(r / l) / (2 pi l^2 k_s)``) to the gap.
 
 ``"pyramid"`` (fast, after Taxim, Si and Yuan 2022)
     The object's penetration ``I = max(P - (P_max - delta), 0)`` spread by a Gaussian
     pyramid (coarse to fine, each level clamped to stay at or above ``I``: the gel
-    never passes through the object), then the membrane blur. Force and approach are
-    tied by ``F = c E* V / sqrt(A) / S(kappa h / a)^beta``, with ``V`` the penetration
-    volume, ``A`` its area, ``a = sqrt(A / pi)``; ``c``, ``kappa``, ``beta`` are fitted to the
-    elastic model and stored in ``assets/imprint_law.toml`` (see :func:`fit_pyramid_law`).
-    For a sphere on a half-space the law is Hertz's with ``c = (4/3) sqrt(2/pi) =
-    1.064``; for a flat punch ``c = 2 / sqrt(pi) = 1.128``.
+    never passes through the object), then the membrane blur. Given the right approach
+    this reproduces the elastic model's depth map of a texture closely (the clamps put the
+    gel on the crowns, the blurs span the valleys); the contact is where the last clamp
+    holds and the penetration exceeds ``contact_fraction`` of its peak. Force and approach
+    are tied by ``F = c E* V / sqrt(A) / R(kappa a / h)^beta``, with ``V`` the penetration
+    volume, ``A`` the *apparent* contact area (the extent of the loaded region: that of the
+    protrusion closed over h/4, so that a fabric touching only on its crowns loads the gel
+    over the whole patch), ``a = sqrt(A / pi)`` and ``R`` the layer's
+    mean compliance under a uniformly loaded disk relative to the half-space's (exact for
+    a << h and a >> h). ``c``, ``kappa``, ``beta`` are fitted to the elastic model on
+    spheres and on whole-pad contacts and stored in ``assets/imprint_law.toml`` (see
+    :func:`fit_pyramid_law`). For a sphere on a half-space the law is Hertz's with
+    ``c = (4/3) sqrt(2/pi) = 1.064``; for a flat punch ``c = 2 / sqrt(pi) = 1.128``. On a
+    support, the gel takes ``k_s / (k_g + k_s)`` of the large-scale penetration (springs in
+    series) and the texture's share at its own wavenumber (Pasternak stiffening).
 
 Both models clip the approach at ``gel.max_indentation_mm`` (the pad bottoms out; the
 force beyond is carried by the sensor's frame and ``bottomed_out`` is set) and work
@@ -49,7 +70,7 @@ from typing import Any
 import cv2
 import numpy as np
 from scipy import fft as sfft
-from scipy.special import j0
+from scipy.special import ive, j0, j1, k0, k1, kve
 
 from .errors import GelsimError
 from .params import ASSETS_DIR, build, load_toml, param
@@ -90,11 +111,16 @@ class Imprint:
 @dataclass(frozen=True)
 class ImprintLaw:
     """Constants of the pyramid model's force law, fitted to the elastic model."""
-    force_coef: float = param(lo=0.1, hi=10.0, doc="c in F = c E* V / sqrt(A) / S(kappa h / a)^beta")
-    layer_kappa: float = param(lo=0.01, hi=100.0, doc="kappa: the contact size's wavenumber, q = kappa / a")
+    force_coef: float = param(lo=0.1, hi=10.0, doc="c in F = c E* V / sqrt(A) / R(kappa a / h)^beta")
+    layer_kappa: float = param(lo=0.01, hi=100.0, doc="kappa: the contact radius enters as kappa a / h")
     pyramid_sigma_per_thickness: float = param(lo=0.01, hi=10.0,
                                                doc="blur of the coarsest pyramid level, in gel thicknesses")
-    layer_exponent: float = param(1.0, lo=0.0, hi=3.0, doc="beta: the layer factor enters as S^-beta")
+    layer_exponent: float = param(1.0, lo=0.0, hi=3.0, doc="beta: the layer factor enters as R^-beta")
+    apparent_cell_per_thickness: float = param(0.25, lo=0.0, hi=10.0,
+                                               doc="valleys narrower than this (in gel thicknesses) count as "
+                                                   "apparent contact")
+    support_length_mm: float = param(0.5, lo=0.0, hi=20.0,
+                                     doc="default shear length of a fabric support (Pasternak), mm")
     contact_fraction: float = param(0.5, lo=0.0, hi=1.0,
                                     doc="pixels whose penetration is at least this fraction of the approach are in contact")
     fitted_poisson_ratio: float = param(0.48, lo=0.0, hi=0.5, doc="Poisson's ratio of the fit")
@@ -205,15 +231,46 @@ def _kernel_fft(ny: int, nx: int, dx: float, e_mpa: float, nu: float, h_mm: floa
     return sfft.rfft2(k, workers=1)
 
 
-class _Operator:
-    """u = K * p on an (ny, nx) window, plus the Winkler support's p / k_s."""
+@functools.lru_cache(maxsize=16)
+def _support_kernel_fft(ny: int, nx: int, dx: float, ell: float) -> np.ndarray:
+    """rfft2 of a Pasternak support's influence coefficients (unit stiffness) on the
+    zero-padded (2 ny, 2 nx) grid.
 
-    def __init__(self, shape: tuple[int, int], dx: float, gel, support_compliance: float):
+    A Pasternak layer ``k w - k l^2 lap w = p`` spreads a point load as
+    ``K0(r / l) / (2 pi l^2 k)``: coefficient (i, j) is that at the pixel offset times the
+    pixel area, the centre the exact integral over a disk of one pixel's area
+    (``1 - X K1(X)``, X = dx / (sqrt(pi) l)). The weights sum to 1 (uniform load: w = p / k).
+    """
+    iy = np.arange(2 * ny)
+    iy = np.where(iy < ny, iy, iy - 2 * ny) * dx
+    ix = np.arange(2 * nx)
+    ix = np.where(ix < nx, ix, ix - 2 * nx) * dx
+    r = np.hypot(iy[:, None], ix[None, :])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.where(r > 0, k0(np.maximum(r, 1e-300) / ell), 0.0) * (dx * dx / (2 * math.pi * ell * ell))
+    x0 = dx / (math.sqrt(math.pi) * ell)
+    c[0, 0] = 1.0 - x0 * float(k1(x0))
+    return sfft.rfft2(c, workers=1)
+
+
+class _Operator:
+    """u = K * p on an (ny, nx) window, plus the fabric support's compression.
+
+    ``support_compliance`` = 1 / k_s (mm/MPa); ``support_len`` (mm) = the support's
+    Pasternak shear length (0 or None: a Winkler support, ``p / k_s`` point by point).
+    """
+
+    def __init__(self, shape: tuple[int, int], dx: float, gel, support_compliance: float,
+                 support_len: float | None = None):
         self.ny, self.nx = shape
         self.s = (2 * self.ny, 2 * self.nx)
         self.kf = _kernel_fft(self.ny, self.nx, float(dx), float(gel.young_modulus_mpa),
                               float(gel.poisson_ratio), float(gel.thickness_mm))
         self.cs = support_compliance
+        self.pasternak = bool(support_compliance) and support_len is not None and support_len > 0.5 * dx
+        if self.pasternak:
+            self.kf = self.kf + support_compliance * _support_kernel_fft(self.ny, self.nx, float(dx),
+                                                                        float(support_len))
 
     def gel(self, p: np.ndarray) -> np.ndarray:
         u = sfft.irfft2(sfft.rfft2(p, s=self.s, workers=1) * self.kf, s=self.s, workers=1)
@@ -221,7 +278,7 @@ class _Operator:
 
     def __call__(self, p: np.ndarray) -> np.ndarray:
         u = self.gel(p)
-        return u + self.cs * p if self.cs else u
+        return u + self.cs * p if (self.cs and not self.pasternak) else u
 
 
 def _pk_solve(op: _Operator, h: np.ndarray, area: float, *, force: float | None = None,
@@ -283,37 +340,125 @@ def _pk_solve(op: _Operator, h: np.ndarray, area: float, *, force: float | None 
 # --------------------------------------------------------------------------------------
 # Pyramid law and smoothing
 # --------------------------------------------------------------------------------------
-def _law_force(vol: np.ndarray, area: np.ndarray, gel, ks: float | None) -> np.ndarray:
-    """Pyramid-model force (N) for penetration volume (mm^3) and area (mm^2)."""
+@functools.lru_cache(maxsize=32)
+def _disk_layer_table(nu: float) -> tuple[np.ndarray, np.ndarray]:
+    """R(rho) on a log grid of rho = a / h (float64).
+
+    R is the mean displacement of a uniformly loaded disk of radius a on the bonded
+    layer relative to the half-space's (``16 p a / (3 pi E*)``):
+    ``R = int S(x h / a) w(x) dx / int w(x) dx`` with ``w = (2 J1(x) / x)^2``, x = q a
+    (the disk's load spectrum weighted by the layer's compliance). R -> 1 for a << h and
+    falls as the contact outgrows the thickness (the nearly incompressible layer is
+    squeezed only near the contact's edge).
+    """
+    log_rho = np.linspace(math.log(1e-3), math.log(1e3), 121)  # contacts from h/1000 to 1000 h
+    # Midpoint rule, step 0.01 (J1's period is 2 pi); w falls as 8 / (pi x^3), so the part
+    # beyond x = 80 is 1e-4 of the integral.
+    x = (np.arange(8000) + 0.5) * 0.01
+    w = (2.0 * j1(x) / x) ** 2
+    r = np.array([float(layer_factor(x / math.exp(lr), nu) @ w) for lr in log_rho]) / float(w.sum())
+    return log_rho, r
+
+
+def disk_layer_factor(rho: np.ndarray, nu: float) -> np.ndarray:
+    """R(a / h): the bonded layer's mean compliance under a uniformly loaded disk relative to
+    the half-space's (1 for a << h), float64, same shape as ``rho``."""
+    log_rho, r = _disk_layer_table(float(nu))
+    return np.interp(np.log(np.maximum(np.asarray(rho, dtype=np.float64), 1e-300)), log_rho, r)
+
+
+def _support_disk_stiffness(ks: float, area_app: np.ndarray, ell: float | None) -> np.ndarray:
+    """Mean stiffness (MPa/mm) of a Pasternak support of shear length ``ell`` under a uniform
+    load on a disk of area ``area_app``: ``ks / (1 - 2 I1(a/l) K1(a/l))`` (``ks`` for a
+    Winkler support or a disk much wider than l; stiffer for a small one, whose load the
+    yarns spread beyond it)."""
+    area_app = np.asarray(area_app, dtype=np.float64)
+    if not ell:
+        return np.full(area_app.shape, ks)
+    alpha = np.maximum(np.sqrt(area_app / math.pi) / ell, 1e-6)
+    share = 1.0 - 2.0 * ive(1, alpha) * kve(1, alpha)  # exp(a) exp(-a) cancel: no overflow
+    return ks / np.maximum(share, 1e-12)
+
+
+def _law_stiffness(area_app: np.ndarray, gel, ks: float | None, ell: float | None = None,
+                   ratio: float = 1.0) -> np.ndarray:
+    """Pyramid-model force per penetration volume, N/mm^3, for apparent contact area (mm^2).
+
+    The law holds for the volume under the pyramid's gel surface, ``ratio`` times the
+    penetration volume. A support (``ks`` MPa/mm, shear length ``ell`` mm) acts in series.
+    """
     law = imprint_law()
     estar = effective_modulus_mpa(gel)
+    area_app = np.asarray(area_app, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
-        a = np.sqrt(area / math.pi)
-        s = layer_factor(np.where(a > 0, law.layer_kappa * gel.thickness_mm / np.where(a > 0, a, 1.0),
-                                  _S_X_MAX), gel.poisson_ratio)
-        kg = np.where(area > 0, law.force_coef * estar / (np.sqrt(np.maximum(area, 1e-300))
-                                                          * s ** law.layer_exponent), 0.0)
+        a = np.sqrt(area_app / math.pi)
+        r = disk_layer_factor(law.layer_kappa * a / gel.thickness_mm, gel.poisson_ratio)
+        kg = np.where(area_app > 0, ratio * law.force_coef * estar / (np.sqrt(np.maximum(area_app, 1e-300))
+                                                                      * r ** law.layer_exponent), 0.0)
         if ks:
-            kg = np.where(kg > 0, kg * ks / (kg + ks), 0.0)
-    return kg * vol
+            kse = _support_disk_stiffness(ks, area_app, ell)
+            kg = np.where(kg > 0, kg * kse / (kg + kse), 0.0)
+    return kg
 
 
-def _penetration_stats(v: np.ndarray, cell_area: float, vmax: float, n_bins: int = 2048):
-    """Area (mm^2) and volume (mm^3) penetrated at approach ``edges``: histogram form.
+class _LawSamples:
+    """Penetration statistics of a protrusion for the pyramid law.
 
-    ``v`` = P_max - P (mm) of the sampled pixels. Bins are vmax / 2048 wide: at most
-    half a micrometre for the pads we simulate, far below any relief that shades.
+    ``v`` = P_max - P (mm) on the work grid. The law needs, for each approach delta, the
+    penetration volume V (mm^3) and the *apparent* contact area A (mm^2): the area the
+    loaded region spans, not the sum of the touching spots. A textured object (a fabric)
+    touches only on its crowns, yet the gel feels the load spread over the whole patch:
+    the layer's stiffening (R) and the 1/sqrt(A) depend on that extent. A is taken from the
+    protrusion's grey-scale closing over a square of ``apparent_cell_per_thickness`` gel
+    thicknesses: valleys narrower than that (the gel spans them) are filled to the crowns'
+    level, while a smooth convex object is left as it is.
     """
-    v = v[v < vmax]
-    edges = np.linspace(0.0, vmax, n_bins + 1)
-    idx = np.minimum((v * (n_bins / vmax)).astype(np.int64), n_bins - 1)
-    cnt = np.bincount(idx, minlength=n_bins).astype(np.float64)
-    vsum = np.bincount(idx, weights=v.astype(np.float64), minlength=n_bins)
-    c_cnt = np.concatenate([[0.0], np.cumsum(cnt)])
-    c_v = np.concatenate([[0.0], np.cumsum(vsum)])
-    area = c_cnt * cell_area
-    vol = (edges * c_cnt - c_v) * cell_area
-    return edges, area, vol
+
+    def __init__(self, v: np.ndarray, dx: float, gel, vmax: float):
+        law = imprint_law()
+        probe = 4  # count candidates on every 4th pixel first: 1/16 of the work
+        n = int(np.count_nonzero(v[::probe, ::probe] < vmax)) * probe * probe
+        stride = max(1, int(math.sqrt(n / 40000.0)))  # ~40k samples fix A and V within ~0.5%
+        vs = np.ascontiguousarray(v[::stride, ::stride], dtype=np.float32)
+        cell = int(round(law.apparent_cell_per_thickness * gel.thickness_mm / (dx * stride)))
+        cell = min(cell, 2 * max(vs.shape) + 1)  # wider than the frame changes nothing
+        self.cell_area = dx * dx * stride * stride
+        # Closing of P = opening of v (v = P_max - P): erode v (the crowns' reach) then dilate.
+        va = vs if cell < 2 else cv2.morphologyEx(vs, cv2.MORPH_OPEN, np.ones((cell, cell), np.uint8),
+                                                  borderType=cv2.BORDER_REPLICATE)
+        keep = vs < vmax
+        self.v = vs[keep].astype(np.float64)
+        self.va = va[va < vmax].astype(np.float64)
+        self.vmax = vmax
+
+    def curve(self, gel, ks, ell=None, ratio: float = 1.0, n_bins: int = 2048) -> tuple[np.ndarray, np.ndarray]:
+        """(approach edges mm, law force N at each), force non-decreasing.
+
+        Bins are vmax / 2048 wide: at most half a micrometre for the pads we simulate,
+        far below any relief that shades."""
+        vmax = self.vmax
+        edges = np.linspace(0.0, vmax, n_bins + 1)
+        idx = np.minimum((self.v * (n_bins / vmax)).astype(np.int64), n_bins - 1)
+        cnt = np.bincount(idx, minlength=n_bins).astype(np.float64)
+        vsum = np.bincount(idx, weights=self.v, minlength=n_bins)
+        ia = np.minimum((self.va * (n_bins / vmax)).astype(np.int64), n_bins - 1)
+        app = np.bincount(ia, minlength=n_bins).astype(np.float64)
+        c_cnt = np.concatenate([[0.0], np.cumsum(cnt)])
+        c_v = np.concatenate([[0.0], np.cumsum(vsum)])
+        c_app = np.concatenate([[0.0], np.cumsum(app)])
+        vol = (edges * c_cnt - c_v) * self.cell_area
+        f = _law_stiffness(c_app * self.cell_area, gel, ks, ell, ratio) * vol
+        return edges, np.maximum.accumulate(f)
+
+    def at(self, delta: float) -> tuple[float, float]:
+        """(penetration volume mm^3, apparent area mm^2) at approach ``delta`` (mm)."""
+        m = self.v < delta
+        return (float((delta - self.v[m]).sum()) * self.cell_area,
+                float(np.count_nonzero(self.va < delta)) * self.cell_area)
+
+    def force(self, delta: float, gel, ks, ell=None, ratio: float = 1.0) -> float:
+        vol, app = self.at(delta)
+        return float(_law_stiffness(np.array(app), gel, ks, ell, ratio) * vol)
 
 
 def _resize(img: np.ndarray, shape: tuple[int, int], interp=cv2.INTER_LINEAR) -> np.ndarray:
@@ -408,7 +553,7 @@ def _no_contact(profile) -> Imprint:
 
 def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None = None,
           depth_mm: float | None = None, support_stiffness_kpa_per_mm: float | None = None,
-          window: str = "touched") -> Imprint:
+          window: str = "touched", support_length_mm: float | None = None) -> Imprint:
     """Press an object into the gel.
 
     protrusion_mm: (H, W) protrusion map in mm at the profile's image resolution, or
@@ -418,6 +563,9 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
         compressive modulus / thickness), kPa/mm; None = rigid object.
     window: "touched" computes over the touched region only (default); "full" over the whole
         frame (for checking the former).
+    support_length_mm: the support's shear length, mm (a fabric: about its thickness);
+        None = ``support_length_mm`` of assets/imprint_law.toml; 0 = a Winkler support
+        (each point on its own spring, which flattens texture of every scale alike).
     Returns an :class:`Imprint` at the profile's image resolution (float32 depth).
     """
     from .fidelity import get_fidelity
@@ -437,10 +585,14 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
                           f"or {ws} (its imprint grid)")
     dx = profile.image.mm_per_px * profile.shape[1] / ws[1]
     ks = None if support_stiffness_kpa_per_mm is None else support_stiffness_kpa_per_mm * 1e-3  # MPa/mm
+    if support_length_mm is not None and not (math.isfinite(support_length_mm) and support_length_mm >= 0):
+        raise GelsimError(f"support_length_mm = {support_length_mm} is negative or not finite; give a length "
+                          ">= 0 mm (about the fabric's thickness) or None")
+    ell = imprint_law().support_length_mm if support_length_mm is None else float(support_length_mm)
     if fidelity.imprint_model == "elastic":
-        out = _press_elastic(work, dx, gel, force_n, depth_mm, ks, window)
+        out = _press_elastic(work, dx, gel, force_n, depth_mm, ks, window, ell)
     else:
-        out = _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window)
+        out = _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window, ell)
     depth_w, mask_w, delta, force, bottomed = out
     depth = _resize(depth_w, profile.shape)
     mask = mask_w if mask_w.shape == profile.shape else _resize(mask_w.astype(np.float32), profile.shape) >= 0.5
@@ -457,58 +609,98 @@ def _pen_window(work: np.ndarray, v: np.ndarray, delta: float, margin_px: int, w
 
 def _law_delta(work: np.ndarray, v: np.ndarray, dx: float, gel, force: float, ks) -> tuple[float, bool]:
     """Approach (mm) the pyramid law gives for ``force`` (N), and whether it bottomed out."""
-    vmax = gel.max_indentation_mm
-    probe = 4  # count candidates on every 4th pixel first: 1/16 of the work
-    n = int(np.count_nonzero(v[::probe, ::probe] < vmax)) * probe * probe
-    stride = max(1, int(math.sqrt(n / 40000.0)))  # ~40k samples fix A and V within ~0.5%
-    vs = v[::stride, ::stride]
-    edges, area, vol = _penetration_stats(vs.ravel(), dx * dx * stride * stride, vmax)
-    f = _law_force(vol, area, gel, ks)
-    f = np.maximum.accumulate(f)
+    edges, f = _LawSamples(v, dx, gel, gel.max_indentation_mm).curve(gel, ks, None, _RATIO_GUESS)
     if force >= f[-1]:
-        return vmax, True
+        return gel.max_indentation_mm, True
     return float(np.interp(force, f, edges)), False
 
 
-def _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window):
-    law = imprint_law()
-    pmax = float(work.max())
-    v = pmax - work
-    bottomed = False
-    if force_n is not None:
-        delta, bottomed = _law_delta(work, v, dx, gel, force_n, ks)
-    else:
-        delta = float(depth_mm)
-        if delta >= gel.max_indentation_mm:
-            delta, bottomed = gel.max_indentation_mm, True
-    sigma_px = law.pyramid_sigma_per_thickness * gel.thickness_mm / dx
+# Volume under the pyramid's surface over the penetration volume: about 2 for smooth
+# objects at the fitted blur (a starting guess only; each press measures its own).
+_RATIO_GUESS = 2.0
+# Force control: stop refining the volume ratio once it moves by less than this (the
+# approach then moves by about as much, well inside the law's own error).
+_RATIO_TOL = 0.01
+
+
+def _pyramid_window(work, v, delta, sigma_px, window):
     margin = int(math.ceil(3 * sigma_px))  # a Gaussian is < 1.2% of its peak beyond 3 sigma
     sl = _pen_window(work, v, delta, margin, window)
-    if sl is None or delta <= 0:
-        return np.zeros(work.shape, np.float32), np.zeros(work.shape, bool), 0.0, 0.0, False
+    if sl is None:
+        return None
     # Align the window to the coarsest pyramid level so that its cells are the full
     # frame's cells: the touched-region result then equals the full-frame one.
     step = 2 ** max(0, int(math.floor(math.log2(max(sigma_px / _LEVEL_SIGMA, 1.0)))))
     r0, c0 = sl[0].start // step * step, sl[1].start // step * step
     r1 = min(work.shape[0], -(-sl[0].stop // step) * step)
     c1 = min(work.shape[1], -(-sl[1].stop // step) * step)
-    sl = (slice(r0, r1), slice(c0, c1))
-    pen = np.float32(delta) - v[sl]
+    return slice(r0, r1), slice(c0, c1)
+
+
+def _pyramid_surface(vw, delta, dx, gel, samples, ks, ell, ratio, sigma_px):
+    """(penetration taken by the gel, gel surface before the membrane blur, volume ratio)
+    on the window ``vw`` (= P_max - P, mm) at approach ``delta``."""
+    pen = np.float32(delta) - vw
     cv2.max(pen, 0.0, dst=pen)
-    vol = float(cv2.sumElems(pen)[0]) * dx * dx
-    pen_area = float(cv2.countNonZero(pen)) * dx * dx
-    force = float(_law_force(np.array(vol), np.array(pen_area), gel, ks))
+    if ks:
+        kg = float(_law_stiffness(np.array(samples.at(delta)[1]), gel, None, None, ratio))
+        pen = _support_share(pen, kg, ks, dx, gel, ell)
+    skip = gel.membrane_smoothing_mm / dx >= _LEVEL_SIGMA
+    d = _pyramid_spread(pen, sigma_px, skip_finest=skip)
+    vp = float(cv2.sumElems(pen)[0])
+    return pen, d, (float(cv2.sumElems(d)[0]) / vp if vp > 0 else ratio)
+
+
+def _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window, support_len=None):
+    law = imprint_law()
+    pmax = float(work.max())
+    v = pmax - work
+    bottomed = False
+    vmax = gel.max_indentation_mm
+    samples = _LawSamples(v, dx, gel, vmax)
+    sigma_px = law.pyramid_sigma_per_thickness * gel.thickness_mm / dx
+    ratio = _RATIO_GUESS
+
+    def delta_for(r):
+        edges, f = samples.curve(gel, ks, support_len, r)
+        if force_n >= f[-1]:
+            return vmax, True
+        return float(np.interp(force_n, f, edges)), False
+
+    if force_n is not None:
+        delta, bottomed = delta_for(ratio)
+        # The law holds for the volume under the gel surface, which the pyramid gives:
+        # refine its ratio to the penetration volume once on every other pixel (a quarter
+        # of the work), then at full resolution until it settles.
+        sl = _pyramid_window(work, v, delta, sigma_px, window)
+        if sl is not None and min(sl[0].stop - sl[0].start, sl[1].stop - sl[1].start) >= 64:
+            _, _, ratio = _pyramid_surface(v[sl][::2, ::2], delta, 2 * dx, gel, samples, ks, support_len,
+                                           ratio, sigma_px / 2)
+            delta, bottomed = delta_for(ratio)
+    else:
+        delta = float(depth_mm)
+        if delta >= vmax:
+            delta, bottomed = vmax, True
+    for it in range(4):  # settles in 1-2 passes
+        sl = _pyramid_window(work, v, delta, sigma_px, window)
+        if sl is None or delta <= 0:
+            return np.zeros(work.shape, np.float32), np.zeros(work.shape, bool), 0.0, 0.0, False
+        pen, d, new_ratio = _pyramid_surface(v[sl], delta, dx, gel, samples, ks, support_len, ratio, sigma_px)
+        settled = abs(new_ratio / ratio - 1.0) < _RATIO_TOL
+        ratio = new_ratio
+        if settled or it == 3 or (force_n is None and not ks):
+            break  # (a support's share of the penetration depends on the ratio: settle it too)
+        if force_n is not None:
+            delta, bottomed = delta_for(ratio)
     if force_n is not None and not bottomed:
         force = float(force_n)
-    scale = 1.0
-    if ks:
-        kg = float(_law_force(np.array(1.0), np.array(pen_area), gel, None))
-        scale = ks / (kg + ks)  # gel's share of the penetration, springs in series
-    sigma_m = gel.membrane_smoothing_mm / dx
-    d = _pyramid_spread(pen * np.float32(scale) if scale != 1.0 else pen, sigma_px,
-                        skip_finest=sigma_m >= _LEVEL_SIGMA)
-    d = _membrane_blur(d, sigma_m)
-    m = pen >= np.float32(law.contact_fraction * delta)
+    else:
+        force = samples.force(delta, gel, ks, support_len, ratio)
+    # In contact: the gel surface rests on the object (the pyramid's last clamp holds) and
+    # the object reaches past contact_fraction of the approach (the fitted contact radius
+    # of smooth objects; a texture's valleys, where the gel spans from crown to crown, are out).
+    m = (pen >= d) & (pen >= np.float32(law.contact_fraction * float(pen.max())))
+    d = _membrane_blur(d, gel.membrane_smoothing_mm / dx)
     if d.shape == work.shape:
         return d, m, delta, force, bottomed
     depth = np.zeros(work.shape, np.float32)
@@ -518,7 +710,51 @@ def _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window):
     return depth, mask, delta, force, bottomed
 
 
-def _press_elastic(work, dx, gel, force_n, depth_mm, ks, window):
+def _support_share(pen: np.ndarray, kg: float, ks: float, dx: float, gel, support_len) -> np.ndarray:
+    """The gel's share of the penetration when the object rests on a fabric support.
+
+    Springs in series at the contact's scale: the gel takes ``ks / (kg + ks)`` of the
+    large-scale penetration. A Pasternak support of shear length ``l`` is stiffer by
+    ``1 + (q l)^2`` at wavenumber q, so the texture (the penetration minus its blur over
+    ``l``) is shared at the texture's scale instead: gel stiffness ``E* q / 2`` against
+    ``ks (1 + (q l)^2)``, with q from the texture's own slope and height (RMS slope / RMS
+    height, exact for a sinusoid).
+    """
+    scale_l = ks / (kg + ks)
+    ell = imprint_law().support_length_mm if support_len is None else support_len
+    if ell <= 0.5 * dx:
+        return pen * np.float32(scale_l)
+    low = _coarse_blur(pen, ell / dx)
+    high = pen - low
+    step = max(1, min(high.shape) // 128)  # the texture's statistics from ~128 x 128 samples
+    hs = high[::step, ::step].astype(np.float64)
+    gy, gx = np.gradient(hs)
+    h_rms = float(np.sqrt(np.mean(hs * hs)))
+    s_rms = float(np.sqrt(np.mean(gx * gx + gy * gy))) / (dx * step)
+    if h_rms <= 0:
+        return low * np.float32(scale_l)
+    q = max(s_rms / h_rms, 1.0 / ell)
+    kg_t = effective_modulus_mpa(gel) * q / 2.0
+    ks_t = ks * (1.0 + (q * ell) ** 2)
+    scale_t = ks_t / (kg_t + ks_t)
+    out = low * np.float32(scale_l)
+    out += high * np.float32(scale_t)
+    cv2.max(out, 0.0, dst=out)
+    return out
+
+
+def _coarse_blur(img: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Gaussian blur of ``sigma_px`` computed on a grid about sigma/2 coarser (then
+    bilinear back): a wide blur at the cost of a small one."""
+    f = max(1, int(sigma_px // 2))
+    if f == 1:
+        return cv2.GaussianBlur(img, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
+    small = cv2.resize(img, ((img.shape[1] + f - 1) // f, (img.shape[0] + f - 1) // f), interpolation=cv2.INTER_AREA)
+    small = cv2.GaussianBlur(small, (0, 0), sigma_px / f, borderType=cv2.BORDER_REFLECT)
+    return cv2.resize(small, (img.shape[1], img.shape[0]), interpolation=cv2.INTER_LINEAR)
+
+
+def _press_elastic(work, dx, gel, force_n, depth_mm, ks, window, support_len=None):
     pmax = float(work.max())
     v = (pmax - work).astype(np.float64)
     cs = 0.0 if not ks else 1.0 / ks
@@ -534,7 +770,7 @@ def _press_elastic(work, dx, gel, force_n, depth_mm, ks, window):
         bound = min(max(2.0 * guess, 1e-4), gel.max_indentation_mm)  # 0.1 um floor: a first guess only
         while True:
             sl = _pen_window(work, v, bound, 2, "full" if full else "touched")
-            op = _Operator((sl[0].stop - sl[0].start, sl[1].stop - sl[1].start), dx, gel, cs)
+            op = _Operator((sl[0].stop - sl[0].start, sl[1].stop - sl[1].start), dx, gel, cs, support_len)
             hh = -v[sl]
             p0 = np.maximum(bound * 0.5 + hh, 0.0) + (hh >= -1e-12)
             p, delta = _pk_solve(op, hh, area, force=force_n, p0=p0)
@@ -550,7 +786,7 @@ def _press_elastic(work, dx, gel, force_n, depth_mm, ks, window):
         sl = _pen_window(work, v, delta, 2, "full" if full else "touched")
         if sl is None:
             return np.zeros(work.shape, np.float32), np.zeros(work.shape, bool), 0.0, 0.0, False
-        op = _Operator((sl[0].stop - sl[0].start, sl[1].stop - sl[1].start), dx, gel, cs)
+        op = _Operator((sl[0].stop - sl[0].start, sl[1].stop - sl[1].start), dx, gel, cs, support_len)
         hh = -v[sl]
         p0 = np.maximum(delta + hh, 0.0) * (effective_modulus_mpa(gel) / h_mm)
         p, _ = _pk_solve(op, hh, area, delta=delta, p0=p0)
@@ -584,14 +820,29 @@ def _fit_cases(profile, diameters=(2.0, 4.0, 10.0, 20.0), forces=(0.003, 0.01, 0
     return [(f"sphere {d:g} mm", indenters.sphere(d, profile), f) for d in diameters for f in forces]
 
 
+def _broad_cases(profile, forces=(0.5, 2.0)):
+    """Contacts much wider than the gel is thick: the whole pad on a plane and on gentle
+    domes (radius 60 and 300 mm), as when a fabric lies over the pad: (name, protrusion, force N)."""
+    h, w = profile.shape
+    mm = profile.image.mm_per_px
+    y = (np.arange(h) - (h - 1) / 2)[:, None] * mm
+    x = (np.arange(w) - (w - 1) / 2)[None, :] * mm
+    out = [(f"plane (whole pad)", np.zeros((h, w), np.float32), f) for f in forces]
+    for r in (60.0, 300.0):
+        dome = (-(x * x + y * y) / (2 * r)).astype(np.float32)
+        out += [(f"dome R {r:g} mm", dome - dome.min(), f) for f in forces]
+    return out
+
+
 def fit_pyramid_law(profile=None, resolution_px: int = 480) -> dict[str, Any]:
     """Fit the pyramid model's constants to the elastic model; returns them with residuals.
 
     c from spheres on a thick gel (20 mm: a half-space for these contacts); kappa and beta
-    by least squares on log force from spheres on the profile's gel; the coarsest blur from
-    the depth outside a sphere's contact. A cylinder on its side is reported as a check
-    that took no part in the fit. About a minute; ``benchmarks/bench_gel.py --fit`` writes
-    the result to LAW_FILE.
+    by least squares on log force from spheres on the profile's gel and from broad contacts
+    (the whole pad on a plane and on gentle domes, at a quarter of the resolution: smooth
+    shapes); the coarsest blur from the depth outside a sphere's contact. A cylinder on its
+    side is reported as a check that took no part in the fit. A few minutes;
+    ``benchmarks/bench_gel.py --fit`` writes the result to LAW_FILE.
     """
     from scipy.optimize import least_squares
 
@@ -600,31 +851,50 @@ def fit_pyramid_law(profile=None, resolution_px: int = 480) -> dict[str, Any]:
     from .sensor import load_profile
 
     base = (profile or load_profile("vitac")).with_resolution(resolution_px)
+    broad = base.with_resolution(max(64, resolution_px // 2))
     elastic = dataclasses.replace(get_fidelity("reference"), imprint_model="elastic", imprint_scale=1.0)
     law0 = imprint_law()
     dx = base.image.mm_per_px
 
-    def stats(prot, delta):
-        pen = np.maximum(delta - (prot.max() - prot), 0.0)
-        return float(pen.sum()) * dx * dx, float(np.count_nonzero(pen)) * dx * dx
+    def surface_volume(prot, delta, prof, trial):
+        # Volume under the pyramid's gel surface at approach delta (mm^3), and the apparent area.
+        mm = prof.image.mm_per_px
+        with _law_override(trial):
+            depth, *_ = _press_pyramid(prot.astype(np.float32), mm, prof.gel, None, delta, None, "touched")
+            app = _LawSamples(prot.max() - prot, mm, prof.gel, prof.gel.max_indentation_mm).at(delta)[1]
+        return float(depth.sum(dtype=np.float64)) * mm * mm, app
 
     def law_force(vol, area, gel, c, kappa, beta):
-        a = np.sqrt(np.asarray(area) / math.pi)
-        s = layer_factor(kappa * gel.thickness_mm / a, gel.poisson_ratio)
-        return c * effective_modulus_mpa(gel) * np.asarray(vol) / np.sqrt(area) / s ** beta
+        area = np.asarray(area, dtype=np.float64)
+        r = disk_layer_factor(kappa * np.sqrt(area / math.pi) / gel.thickness_mm, gel.poisson_ratio)
+        return c * effective_modulus_mpa(gel) * np.asarray(vol) / np.sqrt(area) / r ** beta
 
     thick = dataclasses.replace(base, gel=dataclasses.replace(base.gel, thickness_mm=20.0))
-    cs = []
-    for _, prot, f in _fit_cases(thick, diameters=(4.0, 10.0), forces=(0.003, 0.03, 0.3)):
-        im = press(prot, thick, elastic, force_n=f)
-        cs.append(f / float(law_force(*stats(prot, im.indentation_mm), thick.gel, 1.0, 1.0, 0.0)))
-    c = float(np.exp(np.mean(np.log(cs))))
-    rows, runs = [], []
+    runs, broad_runs, thick_runs = [], [], []
     for name, prot, f in _fit_cases(base):
-        im = press(prot, base, elastic, force_n=f)
-        runs.append((name, prot, f, im))
-        if not im.bottomed_out:
-            rows.append((f, *stats(prot, im.indentation_mm)))
+        runs.append((name, prot, f, press(prot, base, elastic, force_n=f)))
+    for name, prot, f in _broad_cases(broad):
+        broad_runs.append((name, prot, f, press(prot, broad, elastic, force_n=f)))
+    for name, prot, f in _fit_cases(thick, diameters=(4.0, 10.0), forces=(0.003, 0.03, 0.3)):
+        thick_runs.append((name, prot, f, press(prot, thick, elastic, force_n=f)))
+    # Coarsest blur first (the law's volume depends on it): depth outside the contact of a
+    # mid-size sphere case, same approach.
+    name, prot, f, im = runs[7]
+    best = None
+    for ratio in np.geomspace(0.05, 2.0, 25):
+        trial = dataclasses.replace(law0, pyramid_sigma_per_thickness=float(ratio))
+        depth_w, *_ = _press_pyramid_with(trial, prot, base, im.indentation_mm)
+        err = float(np.sqrt(np.mean((depth_w - im.depth_mm)[~im.contact_mask] ** 2)))
+        if best is None or err < best[1]:
+            best = (float(ratio), err)
+    law = dataclasses.replace(law0, pyramid_sigma_per_thickness=best[0])
+    cs = []
+    for _, prot, f, im in thick_runs:
+        cs.append(f / float(law_force(*surface_volume(prot, im.indentation_mm, thick, law), thick.gel, 1.0, 1.0, 0.0)))
+    c = float(np.exp(np.mean(np.log(cs))))
+    rows = [(f, *surface_volume(prot, im.indentation_mm, base, law)) for _, prot, f, im in runs if not im.bottomed_out]
+    rows += [(f, *surface_volume(prot, im.indentation_mm, broad, law)) for _, prot, f, im in broad_runs
+             if not im.bottomed_out]
     rows = np.array(rows)
 
     def resid(x):
@@ -632,26 +902,17 @@ def fit_pyramid_law(profile=None, resolution_px: int = 480) -> dict[str, Any]:
 
     sol = least_squares(resid, [0.0, 1.0])
     kappa, beta = float(math.exp(sol.x[0])), float(sol.x[1])
-    law = dataclasses.replace(law0, force_coef=c, layer_kappa=kappa, layer_exponent=beta)
-    # Coarsest blur: depth outside the contact of a mid-size sphere case, same approach.
-    name, prot, f, im = runs[7]
-    best = None
-    for ratio in np.geomspace(0.05, 2.0, 25):
-        trial = dataclasses.replace(law, pyramid_sigma_per_thickness=float(ratio))
-        depth_w, *_ = _press_pyramid_with(trial, prot, base, im.indentation_mm)
-        err = float(np.sqrt(np.mean((depth_w - im.depth_mm)[~im.contact_mask] ** 2)))
-        if best is None or err < best[1]:
-            best = (float(ratio), err)
-    law = dataclasses.replace(law, pyramid_sigma_per_thickness=best[0])
+    law = dataclasses.replace(law, force_coef=c, layer_kappa=kappa, layer_exponent=beta)
     check = [(f"cylinder 4 mm x 6 mm (check)", indenters.cylinder(4.0, base, length_mm=6.0), f)
              for f in (0.01, 0.1)]
     res = []
-    for name, prot, f, im in runs + [(n, p, f, press(p, base, elastic, force_n=f)) for n, p, f in check]:
-        v = prot.max() - prot
-        edges, area, vol = _penetration_stats(v.ravel(), dx * dx, base.gel.max_indentation_mm)
+    cases = ([(n, p, f, im, base) for n, p, f, im in runs]
+             + [(n, p, f, im, broad) for n, p, f, im in broad_runs]
+             + [(n, p, f, press(p, base, elastic, force_n=f), base) for n, p, f in check])
+    for name, prot, f, im, prof in cases:
         with _law_override(law):
-            ff = np.maximum.accumulate(_law_force(vol, area, base.gel, None))
-        d = float(np.interp(f, ff, edges))
+            d = _press_pyramid(prot.astype(np.float32), prof.image.mm_per_px, prof.gel, f, None, None,
+                               "touched")[2]
         res.append({"case": name, "force_n": f, "elastic_mm": round(im.indentation_mm, 5),
                     "pyramid_mm": round(d, 5), "rel": round(d / im.indentation_mm - 1, 4)})
     # Contact: penetration at least a fraction of the approach; the fraction that best
@@ -707,8 +968,11 @@ def write_law(values: dict[str, Any], path=LAW_FILE) -> None:
     keep = ("force_coef", "layer_kappa", "layer_exponent", "pyramid_sigma_per_thickness", "contact_fraction",
             "fitted_poisson_ratio", "fitted_thickness_mm")
     law = {k: values[k] for k in keep}
+    current = imprint_law()
+    for k in ("apparent_cell_per_thickness", "support_length_mm"):  # chosen, not fitted
+        law[k] = getattr(current, k)
     law["note"] = ("fitted by gelsim.gel.fit_pyramid_law: c on a 20 mm gel (half-space), kappa and beta on "
-                   "the profile's gel, blur on the depth outside a sphere's contact; "
+                   "spheres and broad contacts on the profile's gel, blur on the depth outside a sphere's contact; "
                    f"max |log F error| {values.get('force_resid_max')}, "
                    f"rms log contact-radius error {values.get('contact_radius_rms_log')}")
     header = ("Force law and smoothing of the pyramid imprint model (gelsim/gel.py), fitted to the\n"
