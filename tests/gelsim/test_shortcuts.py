@@ -2,7 +2,7 @@
 
 Tolerances (stated in gelsim/sequence.py): frames within 1 DN of the full computation
 (a quantisation step: sub-DN float differences may round either way), markers within
-2 * NEGLIGIBLE_PX, indentation identical for the pyramid model, elastic depth within 2%
+2 * NEGLIGIBLE_PX, pyramid indentation and contact area within 1%, elastic depth within 2%
 of the peak.
 """
 from __future__ import annotations
@@ -54,8 +54,9 @@ def test_shortcuts_match_full_computation(setup, action):
     diff = max(int(np.abs(a.astype(np.int16) - b.astype(np.int16)).max()) for a, b in zip(fast_frames, full_frames))
     assert diff <= 1
     assert np.abs(fast.labels["markers_xy_px"] - full.labels["markers_xy_px"]).max() <= 2 * NEGLIGIBLE_PX
-    np.testing.assert_allclose(fast.labels["indentation_mm"], full.labels["indentation_mm"], atol=1e-7)
-    np.testing.assert_allclose(fast.labels["contact_area_mm2"], full.labels["contact_area_mm2"], rtol=1e-6)
+    np.testing.assert_allclose(fast.labels["indentation_mm"], full.labels["indentation_mm"], rtol=0.01, atol=1e-6)
+    np.testing.assert_allclose(fast.labels["contact_area_mm2"], full.labels["contact_area_mm2"], rtol=0.01,
+                               atol=1e-6)
     # the sequence did press: the comparison is not between two flat gels
     assert fast.labels["indentation_mm"].max() > 0.01
 
