@@ -367,6 +367,14 @@ def disk_layer_factor(rho: np.ndarray, nu: float) -> np.ndarray:
     return np.interp(np.log(np.maximum(np.asarray(rho, dtype=np.float64), 1e-300)), log_rho, r)
 
 
+@functools.lru_cache(maxsize=1)
+def _pasternak_disk_table() -> tuple[np.ndarray, np.ndarray]:
+    """log(a / l) and 1 - 2 I1(a/l) K1(a/l) on a grid from a = l / 400 to 400 l."""
+    la = np.linspace(-6.0, 6.0, 193)  # steps of 1/16 in log: linear interpolation < 1e-3 off
+    alpha = np.exp(la)
+    return la, 1.0 - 2.0 * ive(1, alpha) * kve(1, alpha)  # exp(a) exp(-a) cancel: no overflow
+
+
 def _support_disk_stiffness(ks: float, area_app: np.ndarray, ell: float | None) -> np.ndarray:
     """Mean stiffness (MPa/mm) of a Pasternak support of shear length ``ell`` under a uniform
     load on a disk of area ``area_app``: ``ks / (1 - 2 I1(a/l) K1(a/l))`` (``ks`` for a
@@ -375,9 +383,11 @@ def _support_disk_stiffness(ks: float, area_app: np.ndarray, ell: float | None) 
     area_app = np.asarray(area_app, dtype=np.float64)
     if not ell:
         return np.full(area_app.shape, ks)
-    alpha = np.maximum(np.sqrt(area_app / math.pi) / ell, 1e-6)
-    share = 1.0 - 2.0 * ive(1, alpha) * kve(1, alpha)  # exp(a) exp(-a) cancel: no overflow
-    return ks / np.maximum(share, 1e-12)
+    la, share = _pasternak_disk_table()
+    x = np.log(np.maximum(np.sqrt(area_app / math.pi) / ell, 1e-300))
+    s = np.interp(x, la, share)
+    s = np.where(x > la[-1], 1.0 - np.exp(-x), s)  # wide disks: 2 I1 K1 -> l / a
+    return ks / np.maximum(s, 1e-12)
 
 
 def _law_stiffness(area_app: np.ndarray, gel, ks: float | None, ell: float | None = None,
@@ -637,18 +647,35 @@ def _pyramid_window(work, v, delta, sigma_px, window):
     return slice(r0, r1), slice(c0, c1)
 
 
-def _pyramid_surface(vw, delta, dx, gel, samples, ks, ell, ratio, sigma_px):
+def _pyramid_surface(vw, delta, dx, gel, samples, support, ratio, sigma_px):
     """(penetration taken by the gel, gel surface before the membrane blur, volume ratio)
-    on the window ``vw`` (= P_max - P, mm) at approach ``delta``."""
+    on the window ``vw`` (= P_max - P, mm) at approach ``delta``; ``support`` = None or
+    (ks MPa/mm, shear length mm, texture wavenumber 1/mm)."""
     pen = np.float32(delta) - vw
-    cv2.max(pen, 0.0, dst=pen)
-    if ks:
-        kg = float(_law_stiffness(np.array(samples.at(delta)[1]), gel, None, None, ratio))
-        pen = _support_share(pen, kg, ks, dx, gel, ell)
+    np.maximum(pen, 0.0, out=pen)
+    if support is not None:
+        ks, ell, q = support
+        app = np.array(samples.at(delta)[1])
+        kg = float(_law_stiffness(app, gel, None, None, ratio))
+        kse = float(_support_disk_stiffness(ks, app, ell))
+        pen = _support_share(pen, kg, kse, ks, ell, q, dx, gel)
     skip = gel.membrane_smoothing_mm / dx >= _LEVEL_SIGMA
     d = _pyramid_spread(pen, sigma_px, skip_finest=skip)
     vp = float(cv2.sumElems(pen)[0])
     return pen, d, (float(cv2.sumElems(d)[0]) / vp if vp > 0 else ratio)
+
+
+def _texture_wavenumber(v: np.ndarray, ell: float, dx: float) -> float:
+    """Wavenumber (1/mm) of the protrusion's texture finer than ``ell``: RMS slope over RMS
+    height of the protrusion minus its blur over ``ell`` (exact for a sinusoid), from about
+    128 x 128 samples; at least 1 / ell."""
+    step = max(1, min(v.shape) // 128)
+    vs = np.ascontiguousarray(v[::step, ::step], dtype=np.float32)
+    high = vs - _coarse_blur(vs, ell / (dx * step))
+    gy, gx = np.gradient(high.astype(np.float64))
+    h_rms = float(np.sqrt(np.mean(high.astype(np.float64) ** 2)))
+    s_rms = float(np.sqrt(np.mean(gx * gx + gy * gy))) / (dx * step)
+    return max(s_rms / h_rms if h_rms > 0 else 0.0, 1.0 / ell)
 
 
 def _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window, support_len=None):
@@ -660,6 +687,10 @@ def _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window, support_len=Non
     samples = _LawSamples(v, dx, gel, vmax)
     sigma_px = law.pyramid_sigma_per_thickness * gel.thickness_mm / dx
     ratio = _RATIO_GUESS
+    support = None
+    if ks:
+        ell = imprint_law().support_length_mm if support_len is None else support_len
+        support = (ks, ell, _texture_wavenumber(v, ell, dx) if ell > 0.5 * dx else 0.0)
 
     def delta_for(r):
         edges, f = samples.curve(gel, ks, support_len, r)
@@ -674,7 +705,7 @@ def _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window, support_len=Non
         # of the work), then at full resolution until it settles.
         sl = _pyramid_window(work, v, delta, sigma_px, window)
         if sl is not None and min(sl[0].stop - sl[0].start, sl[1].stop - sl[1].start) >= 64:
-            _, _, ratio = _pyramid_surface(v[sl][::2, ::2], delta, 2 * dx, gel, samples, ks, support_len,
+            _, _, ratio = _pyramid_surface(v[sl][::2, ::2], delta, 2 * dx, gel, samples, support,
                                            ratio, sigma_px / 2)
             delta, bottomed = delta_for(ratio)
     else:
@@ -685,7 +716,7 @@ def _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window, support_len=Non
         sl = _pyramid_window(work, v, delta, sigma_px, window)
         if sl is None or delta <= 0:
             return np.zeros(work.shape, np.float32), np.zeros(work.shape, bool), 0.0, 0.0, False
-        pen, d, new_ratio = _pyramid_surface(v[sl], delta, dx, gel, samples, ks, support_len, ratio, sigma_px)
+        pen, d, new_ratio = _pyramid_surface(v[sl], delta, dx, gel, samples, support, ratio, sigma_px)
         settled = abs(new_ratio / ratio - 1.0) < _RATIO_TOL
         ratio = new_ratio
         if settled or it == 3 or (force_n is None and not ks):
@@ -710,36 +741,27 @@ def _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window, support_len=Non
     return depth, mask, delta, force, bottomed
 
 
-def _support_share(pen: np.ndarray, kg: float, ks: float, dx: float, gel, support_len) -> np.ndarray:
+def _support_share(pen, kg, kse, ks, ell, q, dx, gel) -> np.ndarray:
     """The gel's share of the penetration when the object rests on a fabric support.
 
-    Springs in series at the contact's scale: the gel takes ``ks / (kg + ks)`` of the
-    large-scale penetration. A Pasternak support of shear length ``l`` is stiffer by
-    ``1 + (q l)^2`` at wavenumber q, so the texture (the penetration minus its blur over
-    ``l``) is shared at the texture's scale instead: gel stiffness ``E* q / 2`` against
-    ``ks (1 + (q l)^2)``, with q from the texture's own slope and height (RMS slope / RMS
-    height, exact for a sinusoid).
+    Springs in series at the contact's scale: the gel takes ``kse / (kg + kse)`` of the
+    large-scale penetration (``kse``: the support's stiffness over the apparent contact).
+    A Pasternak support of shear length ``l`` is stiffer by ``1 + (q l)^2`` at wavenumber
+    q, so the texture (the penetration minus its blur over ``l``) is shared at the
+    texture's wavenumber ``q`` instead: gel stiffness ``E* q / 2`` against
+    ``ks (1 + (q l)^2)``. A Winkler support (l below half a pixel) shares every scale alike.
     """
-    scale_l = ks / (kg + ks)
-    ell = imprint_law().support_length_mm if support_len is None else support_len
+    scale_l = kse / (kg + kse)
     if ell <= 0.5 * dx:
         return pen * np.float32(scale_l)
-    low = _coarse_blur(pen, ell / dx)
-    high = pen - low
-    step = max(1, min(high.shape) // 128)  # the texture's statistics from ~128 x 128 samples
-    hs = high[::step, ::step].astype(np.float64)
-    gy, gx = np.gradient(hs)
-    h_rms = float(np.sqrt(np.mean(hs * hs)))
-    s_rms = float(np.sqrt(np.mean(gx * gx + gy * gy))) / (dx * step)
-    if h_rms <= 0:
-        return low * np.float32(scale_l)
-    q = max(s_rms / h_rms, 1.0 / ell)
     kg_t = effective_modulus_mpa(gel) * q / 2.0
     ks_t = ks * (1.0 + (q * ell) ** 2)
     scale_t = ks_t / (kg_t + ks_t)
-    out = low * np.float32(scale_l)
-    out += high * np.float32(scale_t)
-    cv2.max(out, 0.0, dst=out)
+    low = _coarse_blur(pen, ell / dx)
+    out = pen * np.float32(scale_t)  # = low * scale_l + (pen - low) * scale_t
+    low *= np.float32(scale_l - scale_t)
+    out += low
+    np.maximum(out, 0.0, out=out)
     return out
 
 
