@@ -41,14 +41,18 @@ FIT_RADII = 1.75        # fit inside 1.75 contact radii: the scored disk (1.5) p
 FIT_STRIDE = 2          # every 2nd pixel each way: neighbours are nearly the same sample (the image is smooth)
 SMOOTH_WEIGHT = 3.0     # second-difference penalty between bins, per unit of sample weight; tuned on even frames
 RIDGE_WEIGHT = 1e-3     # keeps bins without samples near zero
-SHADOW_DIRS = 8         # in-plane directions of shadow terms, 45 degrees apart: no need to know where the LEDs are
-SHADOW_SAT_MM = 0.05    # occlusion at which a shadow is half dark: a few px of height at grazing angles
+SHADOW_SAT_MM = 0.1     # occlusion at which a shadow is half dark: a tenth of the ball's 1 mm presses, so a
+                        # shadow deepens over its first third and fades out over its last tenth
 BG_SCALE = 2            # background stored at 1/2 resolution: keeps 2 px detail, is not the raw frame
 BG_SIGMA_PX = 1.0       # smoothing before downsampling (full-resolution px): removes the frame's own noise
 DEFAULT_GRID = {
     "thickness_mm": (1.0, 2.0, 3.0),
     "membrane_smoothing_mm": (0.02, 0.06, 0.12),
-    "shadow_tan": (0.0, 0.25, 0.4, 0.6),    # 0 = no shadow terms
+    # slope of each LED's grazing ray (tan of its elevation; 0 = no shadow terms): a shadow is at most
+    # depth / tan long, so slopes from 0.5 (27 deg) up keep a 1 mm press's shadows within 2 mm of the ball
+    "shadow_tan": (0.0, 0.5, 0.7, 1.0),
+    # penumbra (Gaussian sigma, mm): the LEDs' extent seen from the gel and the membrane's scatter
+    "shadow_soft_mm": (0.1, 0.2),
 }
 
 
@@ -110,8 +114,11 @@ def fit_noise(pack: DataPack, idx: list[int]) -> tuple[float, float]:
 # --------------------------------------------------------------------------------------
 # Shading table
 # --------------------------------------------------------------------------------------
-def _frame_samples(profile, pack: DataPack, i: int, bg: np.ndarray, ball_mm: float, shadow_tan: float):
-    """Features and targets of frame ``i``: dict of nx, ny, xn, yn, occ (K, n) and target (n, 3)."""
+def _frame_samples(profile, pack: DataPack, i: int, bg: np.ndarray, ball_mm: float, shadow: dict | None):
+    """Features and targets of frame ``i``: dict of nx, ny, xn, yn, occ (K, n) and target (n, 3).
+
+    ``shadow``: None, or the shadow terms' ``shadow_dirs_deg``, ``shadow_tan``, ``shadow_sat_mm``
+    and ``shadow_soft_mm`` (the keys of the table file)."""
     h, w = pack.shape
     depth = ball_depth(profile, pack.centers_px[i], pack.radii_px[i], ball_mm)
     c, r = pack.centers_px[i], pack.radii_px[i]
@@ -131,15 +138,13 @@ def _frame_samples(profile, pack: DataPack, i: int, bg: np.ndarray, ball_mm: flo
         "yn": ((yy - (h - 1) / 2.0) * mm / (fh / 2.0)).astype(np.float32),
         "target": pack.imgs[i][yy, xx].astype(np.float32) - bg[yy, xx],
     }
-    if shadow_tan > 0:
-        dirs = 360.0 * np.arange(SHADOW_DIRS) / SHADOW_DIRS
-        f, to_full = shadow_factors(depth, mm, dirs, [shadow_tan] * SHADOW_DIRS, SHADOW_SAT_MM)
+    if shadow is not None:
+        f, to_full = shadow_factors(depth, mm, shadow["shadow_dirs_deg"], shadow["shadow_tan"],
+                                    shadow["shadow_sat_mm"], shadow["shadow_soft_mm"])
         # the renderer brings the factors to full resolution the same way (bilinear)
-        full = cv2.warpAffine(f, to_full, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                              borderMode=cv2.BORDER_REPLICATE) if SHADOW_DIRS <= 4 else np.stack(
-            [cv2.warpAffine(np.ascontiguousarray(f[..., k]), to_full, (w, h),
-                            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
-             for k in range(SHADOW_DIRS)], axis=-1)
+        full = np.stack([cv2.warpAffine(np.ascontiguousarray(f[..., k]), to_full, (w, h),
+                                        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                        borderMode=cv2.BORDER_REPLICATE) for k in range(f.shape[-1])], axis=-1)
         out["occ"] = full[yy, xx].T
     del roi
     return out
@@ -258,9 +263,18 @@ def _with_gel(profile, **gel):
     return dataclasses.replace(profile, gel=dataclasses.replace(profile.gel, **gel))
 
 
-def _cv_mse(profile, pack, idx, bg, ball_mm, shadow_tan) -> float:
+def shadow_spec(dirs_deg, tan_e: float, soft_mm: float) -> dict | None:
+    """The shadow terms' parameters (table-file keys) for lights at ``dirs_deg``; None for ``tan_e <= 0``."""
+    if tan_e <= 0:
+        return None
+    k = len(dirs_deg)
+    return {"shadow_dirs_deg": np.asarray(dirs_deg, np.float32), "shadow_tan": np.full(k, tan_e, np.float32),
+            "shadow_sat_mm": np.float32(SHADOW_SAT_MM), "shadow_soft_mm": np.float32(soft_mm)}
+
+
+def _cv_mse(profile, pack, idx, bg, ball_mm, shadow: dict | None) -> float:
     """Two-fold cross-validated MSE of the table model inside the scored disks of ``idx``."""
-    samples = [_frame_samples(profile, pack, i, bg, ball_mm, shadow_tan) for i in idx]
+    samples = [_frame_samples(profile, pack, i, bg, ball_mm, shadow) for i in idx]
     # score only inside DISK_RADII (the metric's disk) although the fit reaches FIT_RADII
     for s, i in zip(samples, idx):
         c, r = pack.centers_px[i], pack.radii_px[i]
@@ -319,29 +333,34 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
     best = None
     for th, sm in itertools.product(grid["thickness_mm"], grid["membrane_smoothing_mm"]):
         p = _with_gel(prof, thickness_mm=float(th), membrane_smoothing_mm=float(sm))
-        mse = _cv_mse(p, pack, idx, bg, ball_diameter_mm, 0.0)
-        trials.append({"thickness_mm": th, "membrane_smoothing_mm": sm, "shadow_tan": 0.0, "cv_mse": mse})
+        mse = _cv_mse(p, pack, idx, bg, ball_diameter_mm, None)
+        trials.append({"thickness_mm": th, "membrane_smoothing_mm": sm, "shadow_tan": 0.0, "shadow_soft_mm": 0.0,
+                       "cv_mse": mse})
         log(f"thickness {th} mm, smoothing {sm} mm: cv mse {mse:.2f}")
         if best is None or mse < best["cv_mse"]:
             best = trials[-1]
     p_best = _with_gel(prof, thickness_mm=float(best["thickness_mm"]),
                        membrane_smoothing_mm=float(best["membrane_smoothing_mm"]))
-    for tan_e in grid["shadow_tan"]:
+    # One shadow term per LED, cast away from it: the LEDs' azimuths come from the table fitted
+    # without shadows (the shading's slope near flat points to each channel's LED).
+    plain = fit_table([_frame_samples(p_best, pack, i, bg, ball_diameter_mm, None) for i in idx])
+    lights = fit_lights(plain, p_best.lights[0])
+    led_az = [lt.azimuth_deg for lt in lights]
+    log("LED azimuths (deg): " + ", ".join(f"{a:.1f}" for a in led_az))
+    for tan_e, soft in itertools.product(grid["shadow_tan"], grid["shadow_soft_mm"]):
         if tan_e <= 0:
             continue
-        mse = _cv_mse(p_best, pack, idx, bg, ball_diameter_mm, float(tan_e))
+        mse = _cv_mse(p_best, pack, idx, bg, ball_diameter_mm, shadow_spec(led_az, float(tan_e), float(soft)))
         trials.append({"thickness_mm": best["thickness_mm"], "membrane_smoothing_mm": best["membrane_smoothing_mm"],
-                       "shadow_tan": tan_e, "cv_mse": mse})
-        log(f"shadow tan {tan_e}: cv mse {mse:.2f}")
+                       "shadow_tan": tan_e, "shadow_soft_mm": soft, "cv_mse": mse})
+        log(f"shadow slope {tan_e}, penumbra {soft} mm: cv mse {mse:.2f}")
         if mse < best["cv_mse"]:
             best = trials[-1]
-    tan_e = float(best["shadow_tan"])
-    samples = [_frame_samples(p_best, pack, i, bg, ball_diameter_mm, tan_e) for i in idx]
+    shadow = shadow_spec(led_az, float(best["shadow_tan"]), float(best["shadow_soft_mm"]))
+    samples = [_frame_samples(p_best, pack, i, bg, ball_diameter_mm, shadow) for i in idx]
     table = fit_table(samples)
-    if tan_e > 0:
-        table["shadow_dirs_deg"] = (360.0 * np.arange(SHADOW_DIRS) / SHADOW_DIRS).astype(np.float32)
-        table["shadow_tan"] = np.full(SHADOW_DIRS, tan_e, np.float32)
-        table["shadow_sat_mm"] = np.float32(SHADOW_SAT_MM)
+    if shadow is not None:
+        table.update(shadow)
 
     stem = out_path.stem
     bg_file = out_path.with_name(f"{stem}-background.png")
@@ -351,7 +370,7 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
     np.savez_compressed(tmp, **table)
     os.replace(tmp, lut_file)
     fitted = dataclasses.replace(
-        p_best, lights=fit_lights(table, p_best.lights[0]),
+        p_best, lights=lights,                  # the shadows' directions, for pyrender
         shading=dataclasses.replace(p_best.shading, model="lut", table=lut_file.name),
         background=dataclasses.replace(p_best.background, image=bg_file.name, image_resample="linear",
                                        rgb_dn=tuple(float(v) for v in pack.f0.reshape(-1, 3).mean(0))),
@@ -361,7 +380,8 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
     data.pop("source", None)
     header = (f"Fitted by `gelsim calibrate` on {len(idx)} {frames} frames of {Path(pack.source).name}\n"
               f"(mm_per_px {mm_per_px}, ball {ball_diameter_mm} mm). Fitted: background image, shading table,\n"
-              f"gel thickness_mm and membrane_smoothing_mm, noise; lights: azimuths from the table (for pyrender).\n"
+              f"gel thickness_mm and membrane_smoothing_mm, noise, shadows (one per LED: slope, penumbra, colour);\n"
+              f"lights: azimuths from the table (for pyrender and the shadows).\n"
               f"Other values come from the base profile." + (f"\n{note}" if note else ""))
     tmp = out_path.with_name(out_path.name + ".tmp")
     tmp.write_text(dump_toml(data, header))

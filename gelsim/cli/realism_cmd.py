@@ -92,7 +92,8 @@ def run_calibrate(args) -> int:
         b = rep["best"]
         print(f"wrote {rep['profile']} (+ {rep['table']}, {rep['background']}) from {len(rep['frames'])} frames: "
               f"thickness {b['thickness_mm']} mm, smoothing {b['membrane_smoothing_mm']} mm, "
-              f"shadow slope {b['shadow_tan']}, cross-validated MSE {b['cv_mse']:.1f}")
+              f"shadow slope {b['shadow_tan']}, penumbra {b.get('shadow_soft_mm', 0.0)} mm, "
+              f"cross-validated MSE {b['cv_mse']:.1f}")
     return 0
 
 

@@ -72,6 +72,8 @@ def load_table(path: str | Path) -> dict:
         for key in ("shadow_dirs_deg", "shadow_tan", "shadow_rgb"):
             out[key] = np.asarray(data[key], np.float32)
         out["shadow_sat_mm"] = float(data["shadow_sat_mm"])
+        # tables written before soft shadows have hard-edged ones
+        out["shadow_soft_mm"] = float(data.get("shadow_soft_mm", 0.0))
     return out
 
 
@@ -133,8 +135,14 @@ def occlusion(depth: np.ndarray, mm_per_px: float, dir_deg: float, tan_e: float,
 
 
 def shadow_factors(depth: np.ndarray, mm_per_px: float, dirs_deg, tans, sat_mm: float,
-                   scale: float = SHADOW_SCALE) -> tuple[np.ndarray, np.ndarray]:
-    """Shadow darkness ``o_k / (o_k + sat_mm)`` per direction on a ``scale`` grid.
+                   soft_mm: float = 0.0, scale: float = SHADOW_SCALE) -> tuple[np.ndarray, np.ndarray]:
+    """Soft shadow darkness per light direction on a ``scale`` grid.
+
+    For each direction ``k`` the hard occlusion ``o_k`` (:func:`occlusion`) becomes
+    ``o_k / (o_k + sat_mm)`` (the shadow deepens with the height of the occluder above the
+    grazing ray, and fades out towards its tip, where ``o_k`` falls to 0 over
+    ``depth / tan_k``); then a Gaussian blur of ``soft_mm`` (sigma, mm) softens its edges:
+    the LEDs are extended sources and the membrane scatters, so no real shadow edge is sharp.
 
     Returns ``(f, to_full)``: float32 ``(h', w', K)`` with ``h' = ceil(scale h)`` and the 2x3
     map from full-resolution pixels to that grid (for ``cv2.warpAffine(..., WARP_INVERSE_MAP)``).
@@ -145,15 +153,20 @@ def shadow_factors(depth: np.ndarray, mm_per_px: float, dirs_deg, tans, sat_mm: 
     # grid pixel (x', y') sits at full-resolution ((x' + 1/2) / scale - 1/2, ...)
     from_grid = np.array([[1 / scale, 0, 0.5 / scale - 0.5], [0, 1 / scale, 0.5 / scale - 0.5]])
     f = np.empty((hs, ws, len(dirs_deg)), np.float32)
+    sat = np.float32(sat_mm)
     for k, (phi, tan_e) in enumerate(zip(dirs_deg, tans)):
         m, n = _to_rotated(depth.shape, float(phi), scale)
         occ = _occlusion_rotated(depth, m, n, float(tan_e) * mm_per_px / scale)
+        # the saturation is applied in the rotated square, before the warp back (same result, one pass)
+        occ /= occ + sat
         # grid -> rotated square: m applied after from_grid
         g2r = m[:, :2] @ from_grid[:, :2]
         g2r = np.hstack([g2r, (m[:, :2] @ from_grid[:, 2] + m[:, 2])[:, None]])
-        o = cv2.warpAffine(occ, g2r, (ws, hs), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                           borderMode=cv2.BORDER_CONSTANT)
-        f[..., k] = o / (o + np.float32(sat_mm))
+        f[..., k] = cv2.warpAffine(occ, g2r, (ws, hs), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                   borderMode=cv2.BORDER_CONSTANT)
+    sigma = soft_mm / mm_per_px * scale
+    if sigma > 0.3:     # below a third of a grid pixel a blur changes nothing visible
+        f = cv2.GaussianBlur(f, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT).reshape(hs, ws, -1)
     to_full = np.array([[scale, 0, 0.5 * scale - 0.5], [0, scale, 0.5 * scale - 0.5]])
     return f, to_full
 
@@ -197,7 +210,9 @@ class LutShader:
         if self.shadow is None:
             return roi, lut
         s = self.shadow
-        reach = int(math.ceil(float(depth_mm[roi].max()) / max(float(np.min(s["shadow_tan"])), 1e-3) / mm))
+        # a shadow ends depth / tan(elevation) beyond its occluder; its blur reaches 3 sigma further
+        reach = int(math.ceil((float(depth_mm[roi].max()) / max(float(np.min(s["shadow_tan"])), 1e-3)
+                               + 3.0 * s["shadow_soft_mm"]) / mm))
         big = imprint_roi(depth_mm, margin + reach)
         d = depth_mm[big]
         out = self.shade_shadows(d)
@@ -216,7 +231,8 @@ class LutShader:
         """The shadow terms alone: float32 ``(h, w, 3)`` DN (computed at half resolution)."""
         s = self.shadow
         mm = self.profile.image.mm_per_px
-        f, to_full = shadow_factors(d, mm, s["shadow_dirs_deg"], s["shadow_tan"], s["shadow_sat_mm"])
+        f, to_full = shadow_factors(d, mm, s["shadow_dirs_deg"], s["shadow_tan"], s["shadow_sat_mm"],
+                                    s["shadow_soft_mm"])
         hs, ws, k = f.shape
         small = (f.reshape(-1, k) @ s["shadow_rgb"]).reshape(hs, ws, 3)
         h, w = d.shape

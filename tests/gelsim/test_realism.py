@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from gelsim.errors import GelsimError
-from gelsim.optics.lut import LutShader, occlusion
+from gelsim.optics.lut import LutShader, load_table, occlusion, shadow_factors, table_path
 from gelsim.realism import (ball_indentation_mm, check_datapack, crop_box, disk_mask, frame_metrics, load_datapack,
-                            psnr, r15_pack_path, ssim, summarize)
+                            ball_depth, psnr, r15_pack_path, ssim, summarize)
 from gelsim.sensor import load_profile
 
 
@@ -119,6 +119,48 @@ def test_occlusion_falls_on_the_side_away_from_the_light():
         assert np.sign(round(xs.mean() - 60)) == cx and np.sign(round(ys.mean() - 50)) == cy, ang
         # at 1 mm tall and a 45 degree ray, the shadow reaches 1 mm = 100 px at most
         assert o.max() <= 1.0 + 1e-5
+
+
+def test_soft_shadows_are_bounded_by_depth_over_slope_and_have_soft_edges():
+    """A 0.5 mm block lit along +x at slope 0.5: the shadow lies on the -x side, ends within
+    0.5 / 0.5 = 1 mm (+ 3 penumbra sigmas) of the block, and its sides ramp over several pixels."""
+    mm = 0.01
+    d = np.zeros((200, 400), np.float32)
+    d[80:120, 250:290] = 0.5
+    hard, to_full = shadow_factors(d, mm, [0.0], [0.5], 0.1, 0.0)
+    soft, _ = shadow_factors(d, mm, [0.0], [0.5], 0.1, 0.05)
+    for f in (hard, soft):
+        assert f.shape == (100, 200, 1) and f.min() >= 0 and f.max() < 1
+        ys, xs = np.nonzero(f[..., 0] > 0.02)
+        assert xs.mean() < 125                         # grid x 125 = full-res x 250, the block's lit face
+        # full-res x of the farthest shadow pixel: within 1 mm = 100 px (+ 3 sigma = 15 px) of the block
+        assert 250 - (xs.min() + 0.5) / 0.5 <= 100 + (15 if f is soft else 2)
+        assert (f[:, 150:, 0] < 1e-3).all()            # nothing on the lit side, beyond the block (x 290)
+    # the hard shadow's side jumps from 0 to near its full depth in one grid pixel; the soft one ramps
+    col = 110                                          # behind the block (x 220 full-res)
+    step_hard = np.abs(np.diff(hard[:, col, 0])).max()
+    step_soft = np.abs(np.diff(soft[:, col, 0])).max()
+    assert step_hard > 0.5 and step_soft < 0.25 * step_hard
+
+
+def test_shipped_r15_shadows_follow_its_leds_and_stay_near_the_contact():
+    """The R1.5 table's shadows: one per LED at the profile's light azimuths, each darkening its LED's
+    colour most; a ball press changes nothing beyond 2 contact radii (the earlier 8-direction, hard
+    shadows drew wedges 13 DN deep there)."""
+    prof = load_profile("gelsight-r15")
+    t = load_table(table_path(prof))
+    np.testing.assert_allclose(t["shadow_dirs_deg"], [lt.azimuth_deg for lt in prof.lights], atol=0.05)
+    for k, lt in enumerate(prof.lights):
+        own = int(np.argmax(lt.color_rgb))
+        assert t["shadow_rgb"][k, own] < 0 and np.argmin(t["shadow_rgb"][k]) == own
+    assert t["shadow_soft_mm"] > 0 and t["shadow_tan"].min() >= 0.5
+    c, r = (300.0, 250.0), 60.0
+    d = ball_depth(prof, c, r, 4.0)
+    roi, delta = LutShader(prof).delta(d)
+    full = np.zeros(prof.shape + (3,), np.float32)
+    full[roi] = delta
+    assert np.abs(full[~disk_mask(c, 2.0 * r, prof.shape)]).max() < 2.0
+    assert np.abs(full[disk_mask(c, r, prof.shape)]).max() > 30.0     # the press itself is seen
 
 
 def test_lut_shader_flat_is_zero_and_table_slope_is_followed():
