@@ -4,7 +4,7 @@
         [--resolution 320x240] [--hires 960x720] [--knobs LIST]
 
 Sweeps (gelsim.bench.SWEEPS) from the balanced level, one knob at a time, on the bench's
-scenes (a pressed sphere; fabrics 1, 55, 64 under press, slip and twist; 10 frames): the
+scenes (a pressed sphere; fabrics 1 and 64 under press, slip and twist; 8 frames): the
 physics timestep (force error), imprint scale and model, supersampling and render backend
 (image L1) and the marker model (marker error). The knobs whose cost grows with the pixel
 count (imprint scale, marker model) are swept again at ``--hires`` (the ViTac camera's

@@ -7,6 +7,7 @@ from ..errors import GelsimError
 
 
 def register(sub) -> None:
+    from ..bench import DEFAULT_FABRICS, DEFAULT_FRAMES, DEFAULT_PRECONTACT, DEFAULT_RESOLUTION
     from . import HelpFormatter
 
     p = sub.add_parser(
@@ -21,11 +22,13 @@ def register(sub) -> None:
             "on 2 cores. --convergence instead sweeps each knob alone (DIR/convergence.{md,json,png})."),
     )
     p.add_argument("--out", metavar="DIR", default="out/bench", help="output directory for the reports")
-    p.add_argument("--resolution", metavar="WxH", default="320x240",
+    p.add_argument("--resolution", metavar="WxH", default="{}x{}".format(*DEFAULT_RESOLUTION),
                    help="image size in px, same field of view in mm")
-    p.add_argument("--frames", type=int, metavar="N", default=10, help="frames per sequence, pre-contact included")
-    p.add_argument("--precontact", type=int, metavar="N", default=2, help="frames before contact per sequence")
-    p.add_argument("--fabrics", metavar="IDS", default="1,55,64",
+    p.add_argument("--frames", type=int, metavar="N", default=DEFAULT_FRAMES,
+                   help="frames per sequence, pre-contact included")
+    p.add_argument("--precontact", type=int, metavar="N", default=DEFAULT_PRECONTACT,
+                   help="frames before contact per sequence")
+    p.add_argument("--fabrics", metavar="IDS", default=",".join(str(f) for f in DEFAULT_FABRICS),
                    help="comma-separated catalog fabric ids, each run under every action ('' for none)")
     p.add_argument("--actions", metavar="LIST", default="press,slip,twist", help="comma-separated actions")
     p.add_argument("--no-sphere", action="store_true", help="leave out the pressed-sphere scene")

@@ -49,7 +49,7 @@ def test_psnr_and_error_pooling():
 
 def test_scenes_and_sphere_heights():
     names = [s.name for s in bench.scenes_for(BenchConfig())]
-    assert names[0] == "sphere-press" and len(names) == 1 + 3 * 3
+    assert names[0] == "sphere-press" and len(names) == 1 + len(bench.DEFAULT_FABRICS) * 3
     assert len(set(names)) == len(names)
     h = bench.sphere_heights(10.0, -6.0, -6.0, 121, 121, 0.1)
     assert h.max() == pytest.approx(5.0, abs=1e-6) and h[60, 60] == h.max()
