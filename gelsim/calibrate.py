@@ -235,18 +235,23 @@ def predict(table: dict, s: dict, nb: int = N_BINS) -> np.ndarray:
 # --------------------------------------------------------------------------------------
 # Whole calibration
 # --------------------------------------------------------------------------------------
-def fit_lights(table: dict, template) -> tuple:
-    """One light per colour channel, for backends that shade from lights (pyrender): each
-    channel's azimuth from the slope of its table response near the flat normal
-    (for small tilts the change is ~ nx lx + ny ly, so its gradient over (nx, ny) points
-    to where the light comes from); colour the pure channel. Elevation stays the
-    template's (a lookup over normals does not pin it down)."""
+def fit_lights(table: dict, template, gain_dn: float | None = None, elevation_deg: float | None = None) -> tuple:
+    """One light per colour channel, for backends that shade from lights (pyrender) and for the
+    shadows' directions: each channel's azimuth from the slope of its table response near the
+    flat normal (for small tilts the change is ~ nx lx + ny ly, so its gradient over (nx, ny)
+    points to where the light comes from); colour the pure channel.
+
+    ``elevation_deg`` (default: the template's; a lookup over normals does not pin it down)
+    sets the elevation; with ``gain_dn`` (the profile's ``[shading] gain_dn``) each light's
+    intensity is set so that Lambert shading changes by the table's DN per unit tilt near flat:
+    ``|gradient| = gain_dn x intensity x cos(elevation)``."""
     nb = table["table"].shape[0]
     t0 = table["table"][..., 0:3]                       # constant spatial term, (ny, nx, colour)
     u = np.linspace(-1, 1, nb)
     ny, nx = np.meshgrid(u, u, indexing="ij")
     near = nx ** 2 + ny ** 2 <= 0.3 ** 2                # |n_xy| <= 0.3: the linear regime
     a = np.stack([nx[near], ny[near]], axis=1)
+    elev = template.elevation_deg if elevation_deg is None else float(elevation_deg)
     lights = []
     names = ("red", "green", "blue")
     for c in range(3):
@@ -254,8 +259,10 @@ def fit_lights(table: dict, template) -> tuple:
         az = math.degrees(math.atan2(g[1], g[0]))
         col = [0.0, 0.0, 0.0]
         col[c] = 1.0
+        inten = 1.0 if gain_dn is None else float(np.hypot(*g)) / (gain_dn * math.cos(math.radians(elev)))
         lights.append(dataclasses.replace(template, name=names[c], color_rgb=tuple(col), azimuth_deg=round(az, 1),
-                                          intensity=1.0, falloff_per_mm=0.0, distance_mm=0.0))
+                                          elevation_deg=round(elev, 1), intensity=round(inten, 3),
+                                          falloff_per_mm=0.0, distance_mm=0.0))
     return tuple(lights)
 
 
@@ -357,6 +364,10 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
         if mse < best["cv_mse"]:
             best = trials[-1]
     shadow = shadow_spec(led_az, float(best["shadow_tan"]), float(best["shadow_soft_mm"]))
+    # the LEDs' elevation is the shadows' grazing slope (the template's when there are no shadows),
+    # and their intensity the table's response near flat, so pyrender shades as the table does
+    elev = math.degrees(math.atan(float(best["shadow_tan"]))) if shadow is not None else None
+    lights = fit_lights(plain, p_best.lights[0], gain_dn=p_best.shading.gain_dn, elevation_deg=elev)
     samples = [_frame_samples(p_best, pack, i, bg, ball_diameter_mm, shadow) for i in idx]
     table = fit_table(samples)
     if shadow is not None:

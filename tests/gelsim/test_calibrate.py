@@ -26,7 +26,7 @@ def _truth():
     lights = tuple(dataclasses.replace(l, color_rgb=tuple(float(i == k) for i in range(3)), azimuth_deg=az)
                    for k, (l, az) in enumerate(zip(base.lights, LIGHT_AZIMUTHS)))
     return dataclasses.replace(
-        base, lights=lights,
+        base, lights=lights, shading=dataclasses.replace(base.shading, model="phong"),
         gel=dataclasses.replace(base.gel, thickness_mm=TRUE_THICKNESS_MM, membrane_smoothing_mm=0.06,
                                 max_indentation_mm=2.0),
         markers=dataclasses.replace(base.markers, enabled=False),
