@@ -23,7 +23,8 @@ from stam.models import MODEL_NAMES, build
 
 def bench(name: str, n: int, args, device: torch.device, frozen: bool) -> float:
     torch.manual_seed(0)
-    model = build(name, n, args.classes, width=args.width, image_size=args.image_size).to(device).train()
+    model = build(name, n, args.classes, width=args.width, image_size=args.image_size,
+                  hidden=args.hidden).to(device).train()
     if frozen:
         model.backbone.requires_grad_(False)
         with torch.no_grad():
@@ -59,6 +60,7 @@ def main() -> None:
     p.add_argument("--image-size", type=int, default=128, help="px (default 128, cpu preset; the paper: 224)")
     p.add_argument("--frames", type=int, nargs="+", default=[2, 3, 4, 5, 6, 7], help="values of n (default 2..7)")
     p.add_argument("--models", nargs="+", default=list(MODEL_NAMES), choices=MODEL_NAMES)
+    p.add_argument("--hidden", type=int, default=0, help="fc6/fc7 width (default 0 = 4096 x width; cpu preset 512)")
     p.add_argument("--batch", type=int, default=16, help="sequences per step (default 16)")
     p.add_argument("--classes", type=int, default=100, help="classes (default 100)")
     p.add_argument("--steps", type=int, default=5, help="timed steps (default 5)")
@@ -84,7 +86,7 @@ def main() -> None:
                       + (f", head only {row['head_only_seq_per_s']:9.1f} seq/s" if args.frozen else ""), flush=True)
     res = {"device": torch.cuda.get_device_name(0) if device.type == "cuda" else platform.processor() or "cpu",
            "threads": torch.get_num_threads(), "load_average": os.getloadavg(), "width": args.width,
-           "image_size_px": args.image_size, "batch": args.batch, "results": rows}
+           "image_size_px": args.image_size, "hidden": args.hidden, "batch": args.batch, "results": rows}
     if args.json:
         print(json.dumps(res, indent=2))
     else:

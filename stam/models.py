@@ -94,16 +94,19 @@ class TemporalAttention(nn.Module):
 
     def forward(self, x: torch.Tensor, return_map: bool = False):
         b, n, c, h, w = x.shape
-        xc = x.permute(0, 2, 1, 3, 4)  # B x C x n x h x w, positions ordered (frame, row, col)
-        q = self.q(xc).flatten(2)  # B x Cq x m
-        k = self.k(xc).flatten(2)
-        v = self.v(xc).flatten(2)  # B x C x m
-        s = torch.bmm(k.transpose(1, 2), q)  # s[b, j, i] = k_j . q_i = s_ij of Eq. 2
+        # Positions ordered (frame, row, col), channels last: B x m x C. A 1x1x1 convolution is a
+        # per-position linear map; F.linear with the Conv3d weights computes exactly that, several
+        # times faster than CPU Conv3d on these small maps.
+        xm = x.permute(0, 1, 3, 4, 2).reshape(b, n * h * w, c)
+        q = F.linear(xm, self.q.weight.flatten(1), self.q.bias)  # B x m x Cq
+        k = F.linear(xm, self.k.weight.flatten(1), self.k.bias)
+        v = F.linear(xm, self.v.weight.flatten(1), self.v.bias)  # B x m x C
+        s = torch.bmm(k, q.transpose(1, 2))  # s[b, j, i] = k_j . q_i = s_ij of Eq. 2
         a = torch.softmax(s, dim=2)  # normalised over the keys i
-        out = torch.bmm(v, a.transpose(1, 2))  # out[:, :, j] = sum_i A[j, i] v_i
+        out = torch.bmm(a, v)  # out[:, j] = sum_i A[j, i] v_i
         if self.gamma is not None:
             out = self.gamma * out
-        out = out.view(b, c, n, h, w).permute(0, 2, 1, 3, 4) + x
+        out = out.view(b, n, h, w, c).permute(0, 1, 4, 2, 3) + x
         self.last_map = a.detach()
         return (out, a) if return_map else out
 
