@@ -372,6 +372,7 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
     table = fit_table(samples)
     if shadow is not None:
         table.update(shadow)
+    table["gain_dn"] = np.float32(p_best.shading.gain_dn)   # the DN scale the table was fitted at
 
     stem = out_path.stem
     bg_file = out_path.with_name(f"{stem}-background.png")

@@ -16,17 +16,22 @@ across the gel, so the same slope is brighter near its LED. This is the idea of
 Taxim's per-pixel polynomial table (Si and Yuan 2022) with a first-order
 polynomial in position, fitted here by regularised least squares.
 
-Optionally a shadow term: for each of ``K`` in-plane directions ``phi_k`` the
-table holds a colour per unit of *occlusion* ``o_k = max(0, max_{s>0}(h(p + s u_k) -
-h(p) - s tan(e_k)))`` (mm, ``h`` the imprint height, ``u_k`` the direction towards
-the light), i.e. how far the surface towards the light rises above the grazing
-ray at elevation ``e_k``; the colour change adds ``sum_k S_k o_k / (o_k + o_sat)``.
-The running max is computed on the image rotated so that ``u_k`` runs along columns,
-at half resolution.
+Optionally soft shadows, one per LED (``K`` in-plane directions ``phi_k``, the LEDs'
+azimuths). Seen from the camera a press is a bump of the membrane into the gel, lit
+through the gel at grazing angles, so each LED's shadow falls on the side away from
+it, at most ``depth / tan(e_k)`` long. The *occlusion* ``o_k = max(0, max_{s>0}(h(p +
+s u_k) - h(p) - s tan(e_k)))`` (mm, ``h`` the imprint height, ``u_k`` the direction
+towards the light) is how far the surface towards the light rises above the grazing
+ray; the darkness ``o_k / (o_k + o_sat)`` is blurred by a Gaussian penumbra of
+``soft`` mm (extended LEDs, a scattering membrane) and the colour change adds
+``sum_k S_k`` times it. The running max is computed on the image rotated so that
+``u_k`` runs along columns, at half resolution, over the touched box only.
 
 Table file keys: ``table`` float32 ``(nb, nb, 9)`` (bin row = ny, column = nx;
 channel ``3 * basis + colour``), and optionally ``shadow_dirs_deg`` ``(K,)``,
-``shadow_tan`` ``(K,)``, ``shadow_rgb`` ``(K, 3)`` DN, ``shadow_sat_mm`` scalar.
+``shadow_tan`` ``(K,)``, ``shadow_rgb`` ``(K, 3)`` DN, ``shadow_sat_mm`` and ``shadow_soft_mm``
+scalars (mm), and ``gain_dn``: the profile's ``[shading] gain_dn`` when fitted; a profile with
+another gain scales the table's DN by the ratio (as it scales the lights of the other models).
 """
 from __future__ import annotations
 
@@ -72,6 +77,11 @@ def load_table(path: str | Path) -> dict:
     if t is None or t.ndim != 3 or t.shape[0] != t.shape[1] or t.shape[2] != 9 or t.shape[0] < 3:
         raise GelsimError(f"shading table {path}: 'table' must be (nb, nb, 9) with nb >= 3; rerun `gelsim calibrate`")
     out = {"table": np.ascontiguousarray(t, np.float32)}
+    if "gain_dn" in data:
+        g = float(data["gain_dn"])
+        if not (math.isfinite(g) and g > 0):
+            raise GelsimError(f"shading table {path}: gain_dn {g} is not positive; rerun `gelsim calibrate`")
+        out["gain_dn"] = g
     if "shadow_rgb" in data:
         k = len(data["shadow_dirs_deg"])
         if data["shadow_rgb"].shape != (k, 3) or data["shadow_tan"].shape != (k,):
@@ -190,7 +200,10 @@ class LutShader:
     def __init__(self, profile, maps=None, table: dict | None = None):
         self.profile = profile
         t = table if table is not None else load_table(table_path(profile))
-        self.table = t["table"]
+        # [shading] gain_dn is the photometric scale of both backends: the table's DN were fitted
+        # at the profile's gain_dn of the time (stored with it), so another gain scales them
+        gain = profile.shading.gain_dn / t["gain_dn"] if "gain_dn" in t else 1.0
+        self.table = t["table"] * np.float32(gain)
         self.nb = self.table.shape[0]
         # One 9-channel remap per frame (about half the time of three 3-channel ones), with the
         # channels reordered colour-major (3 colour + basis), so that per pixel and colour the
@@ -198,7 +211,7 @@ class LutShader:
         # transform give the colour change.
         nb = self.nb
         self._t9 = np.ascontiguousarray(self.table.reshape(nb, nb, 3, 3).transpose(0, 1, 3, 2).reshape(nb, nb, 9))
-        self.shadow = t if "shadow_rgb" in t else None
+        self.shadow = dict(t, shadow_rgb=t["shadow_rgb"] * np.float32(gain)) if "shadow_rgb" in t else None
         x, y = pixel_grid_mm(profile)
         fw, fh = profile.field_mm
         h, w = profile.shape

@@ -332,7 +332,8 @@ def test_markers_accept_object_with_corners(small):
 
 @pytest.mark.parametrize("setting", ["bright", "dark"])
 def test_no_wraparound_or_nan_at_extremes(vitac, setting):
-    vitac = replace(vitac, shading={"model": "phong"})      # gain_dn scales phong shading (not the table)
+    # specular and shininess belong to the phong model (the calibrated table has no highlight)
+    vitac = replace(vitac, shading={"model": "phong"})
     if setting == "bright":
         p = replace(vitac, shading={"gain_dn": 1000.0, "specular": 10.0, "shininess": 2.0},
                     background={"rgb_dn": (250.0, 250.0, 250.0), "led_tint_dn": 255.0},

@@ -1,6 +1,7 @@
 """gelsim.realism metrics and data packs; the LUT shader; the real R1.5 pack (slow, cached only)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import cv2
@@ -161,6 +162,20 @@ def test_shipped_r15_shadows_follow_its_leds_and_stay_near_the_contact():
     full[roi] = delta
     assert np.abs(full[~disk_mask(c, 2.0 * r, prof.shape)]).max() < 2.0
     assert np.abs(full[disk_mask(c, r, prof.shape)]).max() > 30.0     # the press itself is seen
+
+
+def test_lut_gain_scales_the_table_like_the_lights():
+    """[shading] gain_dn is both backends' photometric scale: the shipped table was fitted at the
+    R1.5 profile's gain, so a profile with twice the gain shades (and shadows) twice as strongly."""
+    prof = load_profile("gelsight-r15").with_resolution(320)
+    t = load_table(table_path(prof))
+    assert t["gain_dn"] == pytest.approx(prof.shading.gain_dn)
+    d = ball_depth(prof, (160.0, 120.0), 30.0, 4.0)
+    roi, a = LutShader(prof).delta(d)
+    double = dataclasses.replace(prof, shading=dataclasses.replace(prof.shading, gain_dn=2 * prof.shading.gain_dn))
+    roi2, b = LutShader(double).delta(d)
+    assert roi == roi2 and np.abs(a).max() > 20.0
+    np.testing.assert_allclose(b, 2.0 * a, rtol=1e-4, atol=1e-3)
 
 
 def test_lut_shader_flat_is_zero_and_table_slope_is_followed():
