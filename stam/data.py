@@ -147,7 +147,13 @@ class Sequence:
 class TactileDataset:
     """A checked ``gelsim generate`` dataset: class labels, sequences, cached frames."""
 
-    def __init__(self, data_dir: str | Path, cache_dir: str | Path | None = None):
+    def __init__(self, data_dir: str | Path, cache_dir: str | Path | None = None, crop: float = 1.0):
+        if not 0.05 <= crop <= 1.0:
+            raise GelsimError(f"crop {crop} is out of range; give the kept fraction of the frame, 0.05-1")
+        # crop: side of a centred square kept from each frame, as a fraction of the frame's shorter
+        # side (1.0 = the whole frame squashed to a square, as the paper resized 960x720 to 224x224).
+        # A smaller crop trades field of view for texture resolution at a given input size.
+        self.crop = float(crop)
         self.dir = Path(data_dir)
         self.manifest = load_manifest(self.dir)
         self.fabric_ids = sorted(f["id"] for f in self.manifest["fabrics"])
@@ -170,7 +176,7 @@ class TactileDataset:
         return [s for s in self.sequences if s.split == name]
 
     def _paths(self, seq: Sequence, size: int) -> tuple[Path, Path]:
-        d = self.cache_dir / f"{size}px"
+        d = self.cache_dir / (f"{size}px" if self.crop == 1.0 else f"{size}px-crop{self.crop:g}")
         return d / f"{seq.id}.npy", self.cache_dir / "scores-v3" / f"{seq.id}.npy"
 
     def prepare(self, seq: Sequence, size: int) -> None:
@@ -190,8 +196,17 @@ class TactileDataset:
         if not spath.is_file():
             _save_atomic(spath, contact_scores(frames))
         if not fpath.is_file():
-            small = np.stack([cv2.resize(f, (size, size), interpolation=cv2.INTER_AREA) for f in frames])
+            small = np.stack([cv2.resize(self._crop(f), (size, size), interpolation=cv2.INTER_AREA)
+                              for f in frames])
             _save_atomic(fpath, small)
+
+    def _crop(self, frame: np.ndarray) -> np.ndarray:
+        if self.crop == 1.0:
+            return frame
+        h, w = frame.shape[:2]
+        side = max(1, round(self.crop * min(h, w)))
+        y0, x0 = (h - side) // 2, (w - side) // 2
+        return frame[y0:y0 + side, x0:x0 + side]
 
     def frames(self, seq: Sequence, size: int) -> np.ndarray:
         """``uint8 (T, size, size, 3)`` RGB frames of ``seq`` (memory-mapped from the cache)."""

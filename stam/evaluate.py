@@ -76,7 +76,7 @@ def evaluate(checkpoint: str | Path, data_dir: str | None = None, split: str = "
     model, cfg, ck = model_from_checkpoint(checkpoint)
     dev = resolve_device(device)
     model.to(dev)
-    data = data or TactileDataset(data_dir or cfg.data, cfg.cache_dir or None)
+    data = data or TactileDataset(data_dir or cfg.data, cfg.cache_dir or None, crop=cfg.crop)
     use_feats = cfg.freeze_backbone and features is not None
     ds = WindowDataset(data, split, cfg.frames, cfg.start, cfg.image_size, cfg.onset, cfg.onset_threshold,
                        features if use_feats else None)

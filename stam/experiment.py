@@ -73,7 +73,7 @@ def load_preset(preset: str) -> dict:
 def _feature_cache(out: Path, backbone_path: Path, data: TactileDataset, width: float, image_size: int,
                    log) -> dict:
     digest = hashlib.sha256(backbone_path.read_bytes()).hexdigest()[:12]
-    path = out / f"features-{digest}-{image_size}px.pt"
+    path = out / f"features-{digest}-{image_size}px-crop{data.crop:g}.pt"
     if path.is_file():
         return torch.load(path, map_location="cpu", weights_only=True)
     t0 = time.perf_counter()
@@ -103,7 +103,8 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
         raise GelsimError(f"--seeds must be at least 1, got {seeds}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    data = TactileDataset(data_dir)
+    crop = float(cfg["train"].get("crop", 1.0))
+    data = TactileDataset(data_dir, crop=crop)
     for split in SPLITS:
         if not data.split(split):
             raise GelsimError(f"dataset {data_dir} has no {split!r} sequences; generate at least 10 sequences "
@@ -120,7 +121,7 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
     if log:
         log(f"onset detection: exact {onsets['exact']}/{onsets['sequences']}, within 1 frame "
             f"{onsets['within_1']}, not detected {onsets['not_detected']}")
-    pt = pretrain(data_dir, out / "pretrain", data=data, progress=False, log=log,
+    pt = pretrain(data_dir, out / "pretrain", data=data, progress=False, log=log, crop=crop,
                   onset_threshold=float(cfg["train"].get("onset_threshold", DEFAULT_ONSET_THRESHOLD)),
                   **{k: pre[k] for k in PRETRAIN_KEYS if k in pre})
     t_pre = time.perf_counter() - t0

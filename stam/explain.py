@@ -104,7 +104,7 @@ def explain(checkpoints: list[str], sequence: str | None = None, out: str | Path
     for _, cfg, _ in loaded[1:]:
         if (cfg.frames, cfg.start, cfg.image_size) != (cfg0.frames, cfg0.start, cfg0.image_size):
             raise GelsimError("checkpoints differ in frames, start or image_size; explain runs of one setting")
-    data = TactileDataset(data_dir or cfg0.data, cfg0.cache_dir or None)
+    data = TactileDataset(data_dir or cfg0.data, cfg0.cache_dir or None, crop=cfg0.crop)
     ds = WindowDataset(data, split, cfg0.frames, cfg0.start, cfg0.image_size, cfg0.onset, cfg0.onset_threshold)
     ids = [s.id for s, _ in ds.items]
     if sequence is None:

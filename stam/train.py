@@ -51,6 +51,7 @@ class TrainConfig:
     onset: str = "detected"        # detected | true
     onset_threshold: float = DEFAULT_ONSET_THRESHOLD  # grey levels
     image_size: int = 224          # px
+    crop: float = 1.0              # centred square kept from each frame, fraction of its shorter side
     width: float = 1.0             # AlexNet channel multiplier
     fusion: str = "mean_logits"
     modules: int = 10
@@ -281,7 +282,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     device = resolve_device(cfg.device)
-    data = data or TactileDataset(cfg.data, cfg.cache_dir or None)
+    data = data or TactileDataset(cfg.data, cfg.cache_dir or None, crop=cfg.crop)
     seed_everything(cfg.seed)
     model = models.build(cfg.model, cfg.frames, data.num_classes, **cfg.model_options())
 
@@ -371,7 +372,7 @@ def model_from_checkpoint(path: str | Path) -> tuple[models.SequenceModel, Train
 def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: int = 224, epochs: int = 10,
              batch_size: int = 64, lr: float = 0.001, optimizer: str = "adam", seed: int = 0, contact_only: bool = True, frame_stride: int = 1,
              onset_threshold: float = DEFAULT_ONSET_THRESHOLD, device: str = "auto", cache_dir: str = "",
-             progress: bool = True, data: TactileDataset | None = None, log=print) -> dict:
+             progress: bool = True, data: TactileDataset | None = None, crop: float = 1.0, log=print) -> dict:
     """Train a single-frame AlexNet on the training split's frames (every ``frame_stride``-th) (the stand-in for ImageNet
     pretraining) and save its backbone as ``out/backbone.pt`` (``{"backbone": state_dict, ...}``).
     Resumable: an existing ``backbone.pt`` with the same settings is returned as is."""
@@ -380,13 +381,15 @@ def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: 
     path = out / "backbone.pt"
     settings = {"width": width, "image_size": image_size, "epochs": epochs, "batch_size": batch_size, "lr": lr,
                 "optimizer": optimizer, "seed": seed, "contact_only": contact_only, "onset_threshold": onset_threshold,
-                "frame_stride": frame_stride}
+                "frame_stride": frame_stride, "crop": crop}
     if path.is_file():
         ck = load_checkpoint(path)
         if ck.get("settings") == settings:
             return {"path": str(path), "val_acc": ck["val_acc"], "reused": True}
     dev = resolve_device(device)
-    data = data or TactileDataset(data_dir, cache_dir or None)
+    data = data or TactileDataset(data_dir, cache_dir or None, crop=crop)
+    if data.crop != crop:
+        raise GelsimError(f"pretrain crop {crop} differs from the dataset reader's crop {data.crop}")
     seed_everything(seed)
     net = AlexNet(data.num_classes, width, pool=feature_size(image_size)).to(dev)
     train_ds = FrameDataset(data, "train", image_size, contact_only, onset_threshold, frame_stride)

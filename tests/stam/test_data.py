@@ -83,3 +83,21 @@ def test_cache_means_no_second_decode(synth, tmp_path, monkeypatch):
     monkeypatch.setattr(gelsim.video, "read_video", no_decode)
     np.testing.assert_array_equal(np.array(TactileDataset(synth, cache_dir=tmp_path / "cache").frames(seq, 64)), first)
     assert not list((tmp_path / "cache" / "64px").glob(".*partial*"))
+
+
+def test_crop_keeps_the_centre_at_higher_resolution(synth, tmp_path):
+    from gelsim.video import read_video
+    from stam.data import TactileDataset
+
+    full = TactileDataset(synth, cache_dir=tmp_path / "full")
+    half = TactileDataset(synth, cache_dir=tmp_path / "half", crop=0.5)
+    seq = full.sequences[0]
+    raw = read_video(seq.video)[-1].astype(np.float32)          # (72, 96, 3)
+    a = np.asarray(half.frames(half.sequences[0], 36))[-1].astype(np.float32)
+    # crop 0.5 of the 72-px side = the central 36 x 36 px, at its native resolution
+    centre = raw[18:54, 30:66]
+    assert np.abs(a - centre).mean() < 1.0
+    b = np.asarray(full.frames(seq, 36))[-1].astype(np.float32)
+    assert np.abs(b - centre).mean() > np.abs(a - centre).mean()
+    with pytest.raises(GelsimError, match="crop"):
+        TactileDataset(synth, crop=0.0)
