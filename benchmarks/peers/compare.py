@@ -149,7 +149,19 @@ def main(argv=None) -> int:
     ap.add_argument("--timeout", type=float, default=3600, help="per runner, s (default 3600)")
     ap.add_argument("--save", type=Path, help="also write the JSON document to this file")
     ap.add_argument("--json", action="store_true", help="print one JSON document instead of the tables")
+    ap.add_argument("--from", dest="from_files", type=Path, nargs="+",
+                    help="instead of measuring, merge documents saved with --save (a peer and mode found in "
+                         "several: the last file's run wins) and print or --save/--json the result")
     args = ap.parse_args(argv)
+    if args.from_files:
+        merged = {}
+        for f in args.from_files:
+            for run in json.loads(f.read_text())["runs"]:
+                merged[(run["peer"], run["mode"])] = run
+        runs = sorted(merged.values(), key=lambda r: (MODES.index(r["mode"]), PEERS.index(r["peer"])))
+        doc = {"target_speedup": TARGET_SPEEDUP, "merged_from": [str(f) for f in args.from_files],
+               "summary": summary(runs), "runs": runs}
+        return finish(doc, runs, args)
     os.makedirs(args.png_dir, exist_ok=True)
     runs = []
     for mode in args.modes.split(","):
@@ -160,6 +172,10 @@ def main(argv=None) -> int:
     up = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     doc = {"target_speedup": TARGET_SPEEDUP, "nproc": os.cpu_count(), "uptime_end": up,
            "summary": summary(runs), "runs": runs}
+    return finish(doc, runs, args)
+
+
+def finish(doc: dict, runs: list[dict], args) -> int:
     if args.save:
         tmp = args.save.with_name(args.save.name + ".part")
         tmp.write_text(json.dumps(doc, indent=1))
@@ -168,7 +184,10 @@ def main(argv=None) -> int:
         print(json.dumps(doc))
     else:
         print(table(runs))
-        print(f"\n{up}")
+        print("\nload average (1, 5, 15 min) before each run:")
+        for r in runs:
+            print(f"  {r['mode']:8s} {r['peer']:13s} {r.get('loadavg_before')}  "
+                  f"(gelsim {r.get('versions', {}).get('gelsim_commit', '-')})")
     return 1 if any("error" in r for r in runs) else 0
 
 

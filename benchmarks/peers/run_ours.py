@@ -8,7 +8,10 @@ Variants, each on the ``vitac`` profile at the scene's resolution and field:
 * ``render, bare``: the same without markers and noise (the peers draw no markers);
 * ``press+render``: ``gel.press`` at the ``fast`` fidelity (Gaussian-pyramid imprint
   after Taxim, at half resolution) and then ``render``, like taxim, whose
-  ``render`` also computes the gel's deformation from the object's height map.
+  ``render`` also computes the gel's deformation from the object's height map;
+* ``render (phong)``: ``render`` with the profile's ``[shading] model`` set to
+  ``phong`` (shading from the profile's lights) where the profile uses another
+  model (vitac uses the calibrated table, ``lut``).
 """
 from __future__ import annotations
 
@@ -41,6 +44,7 @@ def main() -> None:
     from gelsim.gel import press
     from gelsim.markers import rest_markers
     from gelsim.optics import Renderer
+    from gelsim.sensor import load_profile
 
     results = []
     for w, h in RESOLUTIONS:
@@ -48,6 +52,10 @@ def main() -> None:
         ren = Renderer(prof, "fast")
         markers = rest_markers(prof)
         flat = ren.render(None, None, noise=False)
+        phong = None
+        if prof.shading.model != "phong":
+            phong = Renderer(dataclasses.replace(prof, shading=dataclasses.replace(prof.shading, model="phong")),
+                             "fast")
         for name in SCENES:
             gap, depth = scene(name, h, w)
             imp = imprint_mm(gap, depth)
@@ -58,12 +66,14 @@ def main() -> None:
                 "press+render": lambda i=None: ren.render(
                     press(protrusion, prof, "fast", depth_mm=depth).depth_mm, markers, seed=1),
             }
+            if phong is not None:
+                cases["render (phong)"] = lambda i=None: phong.render(imp, markers, seed=1)
             for variant, fn in cases.items():
                 if not wanted(args, f"{w}x{h}", name, variant):
                     continue
                 stats = time_frames(fn, args.warmup, args.frames)
                 img = fn()
-                tag = variant.replace(", ", "-").replace("+", "-")
+                tag = variant.replace(", ", "-").replace("+", "-").replace(" (", "-").replace(")", "")
                 png = os.path.join(args.png_dir, f"peer_ours_{name}_{tag}_{w}x{h}.png")
                 write_png(png, img)
                 results.append({"peer": "gelsim", "variant": variant, "scene": name, "width": w, "height": h,
@@ -76,7 +86,8 @@ def main() -> None:
     except (OSError, subprocess.CalledProcessError):
         commit = "unknown"
     emit(results, {"gelsim": version("gelsim"), "gelsim_commit": commit, "numpy": np.__version__,
-                   "opencv": cv2.__version__, "cv2_threads": cv2.getNumThreads()})
+                   "opencv": cv2.__version__, "cv2_threads": cv2.getNumThreads(),
+                   "vitac_shading_model": load_profile("vitac").shading.model})
 
 
 if __name__ == "__main__":
