@@ -1,6 +1,6 @@
 """Time the gel imprint models and the markers at 960x720, ms per frame, on one core.
 
-    .venv/bin/python benchmarks/bench_gel.py [--json] [--repeat N] [--fit]
+    .venv/bin/python benchmarks/bench_gel.py [--json] [--repeat N] [--fit] [--agreement]
 
 Cases: a 6 mm sphere pressed with 0.2 N, and a fabric-like texture (0.08 mm woven relief
 over a gentle dome, touching most of the pad) pressed with 1 N, with and without a
@@ -8,7 +8,13 @@ fabric support (50 kPa/mm). Imprint: "pyramid" at the fast (0.5) and balanced (1
 imprint scales, "elastic" at the reference level. Markers: "gaussian" and "elastic"
 on the sphere's and the fabric's imprint with shear and twist. Reports the median of
 --repeat runs, wall-clock and CPU time (CPU time is steadier on a shared machine).
+Also catalog fabrics over the whole pad at 2 N on their support, as gelsim.sequence presses
+them (plain weave, knit, leather; fast and balanced only: the elastic reference takes
+10-60 s there).
 ``--fit`` refits the pyramid law to the elastic model and rewrites assets/imprint_law.toml.
+``--agreement`` compares the fast and balanced models with the elastic reference on seven
+catalog fabrics (the cases of tests/gelsim/test_gel_fabrics.py: texture correlation, slope,
+contact and approach ratios), rigid and on their support; a few minutes.
 """
 from __future__ import annotations
 
@@ -28,6 +34,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from gelsim import indenters  # noqa: E402
+from gelsim.fabrics import heightfield, load_catalog  # noqa: E402
 from gelsim.fidelity import get_fidelity  # noqa: E402
 from gelsim.gel import fit_pyramid_law, press, write_law  # noqa: E402
 from gelsim.markers import displace  # noqa: E402
@@ -46,6 +53,41 @@ def fabric_like(profile, seed: int = 0) -> np.ndarray:
     return (weave + dome + 0.005 * rng.standard_normal((h, w))).astype(np.float32)
 
 
+def catalog_patch(fab, profile, seed: int = 0) -> np.ndarray:
+    """The fabric's heightfield over the whole field of view, mm (as `gelsim render --fabric`)."""
+    h, w = profile.shape
+    mm = profile.image.mm_per_px
+    return heightfield(fab, x0_mm=-(w - 1) / 2 * mm, y0_mm=-(h - 1) / 2 * mm, width_px=w, height_px=h,
+                       mm_per_px=mm, seed=seed)
+
+
+def agreement_table(as_json: bool) -> int:
+    """Print the agreement of the fast and balanced imprints with the elastic reference."""
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests", "gelsim"))
+    import test_gel_fabrics as tf
+
+    rows = []
+    for supported in (False, True):
+        for name in tf.FABRICS:
+            t0 = time.perf_counter()
+            ref = tf.imprint(name, supported, "elastic")
+            t_ref = time.perf_counter() - t0
+            for level in tf.LEVELS:
+                a = tf.agreement(tf.imprint(name, supported, level), ref)
+                row = {"fabric": name, "id": tf.FABRICS[name], "support": supported, "level": level,
+                       **{k: round(v, 3) for k, v in a.items()},
+                       "contact_ref": round(float(tf.inner(ref.contact_mask).mean()), 3),
+                       "approach_ref_mm": round(ref.indentation_mm, 4), "elastic_s": round(t_ref, 1)}
+                rows.append(row)
+                if not as_json:
+                    print(f"{name:9} {'support' if supported else 'rigid':8} {level:9} corr {a['corr']:.3f}  "
+                          f"slope {a['slope']:.2f}  contact {a['contact']:.2f} (ref {row['contact_ref']:.3f})  "
+                          f"approach {a['approach']:.2f} (ref {ref.indentation_mm:.4f} mm)", flush=True)
+    if as_json:
+        print(json.dumps({"patch_px": list(tf.PATCH.shape[::-1]), "force_n": tf.FORCE_N, "rows": rows}, indent=2))
+    return 0
+
+
 def timed(fn, repeat: int) -> dict:
     fn()  # warm caches (kernels, tables)
     wall, cpu = [], []
@@ -62,6 +104,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true", help="print one JSON document")
     ap.add_argument("--repeat", type=int, default=20, help="runs per fast case (elastic: a quarter, at least 1)")
     ap.add_argument("--fit", action="store_true", help="refit the pyramid law and rewrite assets/imprint_law.toml")
+    ap.add_argument("--agreement", action="store_true", help="fast models vs elastic on seven fabrics (table)")
     args = ap.parse_args(argv)
     cv2.setNumThreads(1)
     if args.fit:
@@ -69,19 +112,28 @@ def main(argv=None) -> int:
         write_law(res)
         print(json.dumps(res, indent=2))
         return 0
+    if args.agreement:
+        return agreement_table(args.json)
     prof = load_profile("vitac")
     sphere = indenters.sphere(6.0, prof, center_mm=(0.8, -0.4))
     fabric = fabric_like(prof)
     cases = {"sphere": (sphere, 0.2, None), "fabric": (fabric, 1.0, None), "fabric_supported": (fabric, 1.0, 50.0)}
+    for fid in (1, 47, 86):
+        fab = load_catalog()[fid]
+        cases[f"fabric{fid}_pad"] = (catalog_patch(fab, prof), 2.0,
+                                     fab.compressive_modulus_kpa / fab.thickness_mm, fab.thickness_mm)
     levels = {"pyramid_fast": get_fidelity("fast"), "pyramid_balanced": get_fidelity("balanced"),
               "elastic_reference": dataclasses.replace(get_fidelity("reference"), imprint_model="elastic")}
     results: dict = {"resolution": list(prof.shape[::-1]), "imprint": {}, "markers": {},
                      "load_avg": os.getloadavg()[0]}
     imprints = {}
     for lname, fid in levels.items():
-        for cname, (prot, force, ks) in cases.items():
+        for cname, (prot, force, ks, *ell) in cases.items():
+            if fid.imprint_model == "elastic" and cname.endswith("_pad"):
+                continue
             rep = max(1, args.repeat // 4) if fid.imprint_model == "elastic" else args.repeat
-            run = lambda: press(prot, prof, fid, force_n=force, support_stiffness_kpa_per_mm=ks)  # noqa: E731
+            run = lambda: press(prot, prof, fid, force_n=force, support_stiffness_kpa_per_mm=ks,  # noqa: E731
+                                support_length_mm=ell[0] if ell else None)
             r = timed(run, rep)
             im = run()
             r.update(indentation_mm=round(im.indentation_mm, 5), contact_area_mm2=round(im.contact_area_mm2, 3),

@@ -447,17 +447,23 @@ class _LawSamples:
         Bins are vmax / 2048 wide: at most half a micrometre for the pads we simulate,
         far below any relief that shades."""
         vmax = self.vmax
-        edges = np.linspace(0.0, vmax, n_bins + 1)
-        idx = np.minimum((self.v * (n_bins / vmax)).astype(np.int64), n_bins - 1)
-        cnt = np.bincount(idx, minlength=n_bins).astype(np.float64)
-        vsum = np.bincount(idx, weights=self.v, minlength=n_bins)
-        ia = np.minimum((self.va * (n_bins / vmax)).astype(np.int64), n_bins - 1)
-        app = np.bincount(ia, minlength=n_bins).astype(np.float64)
-        c_cnt = np.concatenate([[0.0], np.cumsum(cnt)])
-        c_v = np.concatenate([[0.0], np.cumsum(vsum)])
-        c_app = np.concatenate([[0.0], np.cumsum(app)])
-        vol = (edges * c_cnt - c_v) * self.cell_area
-        f = _law_stiffness(c_app * self.cell_area, gel, ks, ell, ratio) * vol
+        key = n_bins
+        if getattr(self, "_hist", (None,))[0] != key:  # the histograms do not depend on the law
+            edges = np.linspace(0.0, vmax, n_bins + 1)
+            idx = np.minimum((self.v * (n_bins / vmax)).astype(np.int64), n_bins - 1)
+            cnt = np.bincount(idx, minlength=n_bins).astype(np.float64)
+            vsum = np.bincount(idx, weights=self.v, minlength=n_bins)
+            ia = np.minimum((self.va * (n_bins / vmax)).astype(np.int64), n_bins - 1)
+            app = np.bincount(ia, minlength=n_bins).astype(np.float64)
+            c_cnt = np.concatenate([[0.0], np.cumsum(cnt)])
+            c_v = np.concatenate([[0.0], np.cumsum(vsum)])
+            c_app = np.concatenate([[0.0], np.cumsum(app)])
+            vol = (edges * c_cnt - c_v) * self.cell_area
+            self._hist = (key, edges, vol, c_app * self.cell_area, _law_stiffness(c_app * self.cell_area, gel, None))
+        _, edges, vol, area_app, k1 = self._hist
+        if not ks:  # the gel alone: force proportional to the volume ratio
+            return edges, np.maximum.accumulate(k1 * (ratio * vol))
+        f = _law_stiffness(area_app, gel, ks, ell, ratio) * vol
         return edges, np.maximum.accumulate(f)
 
     def at(self, delta: float) -> tuple[float, float]:
@@ -700,27 +706,37 @@ def _press_pyramid(work, dx, gel, force_n, depth_mm, ks, window, support_len=Non
 
     if force_n is not None:
         delta, bottomed = delta_for(ratio)
-        # The law holds for the volume under the gel surface, which the pyramid gives:
-        # refine its ratio to the penetration volume once on every other pixel (a quarter
-        # of the work), then at full resolution until it settles.
-        sl = _pyramid_window(work, v, delta, sigma_px, window)
-        if sl is not None and min(sl[0].stop - sl[0].start, sl[1].stop - sl[1].start) >= 64:
-            _, _, ratio = _pyramid_surface(v[sl][::2, ::2], delta, 2 * dx, gel, samples, support,
-                                           ratio, sigma_px / 2)
-            delta, bottomed = delta_for(ratio)
     else:
         delta = float(depth_mm)
         if delta >= vmax:
             delta, bottomed = vmax, True
-    for it in range(4):  # settles in 1-2 passes
+    # The law holds for the volume under the gel surface, which the pyramid gives (and a
+    # support's share of the penetration depends on it): settle its ratio to the
+    # penetration volume on every other pixel (a quarter of the work), then make the one
+    # full-resolution pass that is the result.
+    coarse = False
+    if force_n is not None or support is not None:
+        for _ in range(2):  # the ratio moves by a few % after the first
+            sl = _pyramid_window(work, v, delta, sigma_px, window)
+            if sl is None or delta <= 0 or min(sl[0].stop - sl[0].start, sl[1].stop - sl[1].start) < 64:
+                break
+            _, _, new_ratio = _pyramid_surface(v[sl][::2, ::2], delta, 2 * dx, gel, samples, support,
+                                               ratio, sigma_px / 2)
+            coarse, settled, ratio = True, abs(new_ratio / ratio - 1.0) < _RATIO_TOL, new_ratio
+            if force_n is not None:
+                delta, bottomed = delta_for(ratio)
+            if settled:
+                break
+    for it in range(1 if coarse else 4):  # small windows: settle at full resolution
         sl = _pyramid_window(work, v, delta, sigma_px, window)
         if sl is None or delta <= 0:
             return np.zeros(work.shape, np.float32), np.zeros(work.shape, bool), 0.0, 0.0, False
         pen, d, new_ratio = _pyramid_surface(v[sl], delta, dx, gel, samples, support, ratio, sigma_px)
         settled = abs(new_ratio / ratio - 1.0) < _RATIO_TOL
+        if coarse or settled or it == 3 or (force_n is None and support is None):
+            ratio = ratio if coarse and force_n is not None else new_ratio
+            break
         ratio = new_ratio
-        if settled or it == 3 or (force_n is None and not ks):
-            break  # (a support's share of the penetration depends on the ratio: settle it too)
         if force_n is not None:
             delta, bottomed = delta_for(ratio)
     if force_n is not None and not bottomed:
