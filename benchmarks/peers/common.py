@@ -75,7 +75,7 @@ def wanted(args, *parts: str) -> bool:
     if not args.only:
         return True
     key = "/".join(parts)
-    return any(tok and tok in key for tok in args.only.split(","))
+    return any(tok.strip() and tok.strip() in key for tok in args.only.split(","))
 
 
 def emit(results: list[dict], versions: dict) -> None:

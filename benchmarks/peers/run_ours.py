@@ -5,7 +5,7 @@ Variants, each on the ``vitac`` profile at the scene's resolution and field:
 * ``render``: ``Renderer(profile, "fast").render(imprint, markers)``: shading, markers,
   camera blur and noise, uint8 out; the imprint is the rigid object's penetration
   (no gel elasticity), as tacto's ``render_from_depth`` gets it;
-* ``render, bare``: the same without markers and noise (the peers draw no markers);
+* ``render bare``: the same without markers and noise (the peers draw no markers);
 * ``press+render``: ``gel.press`` at the ``fast`` fidelity (Gaussian-pyramid imprint
   after Taxim, at half resolution) and then ``render``, like taxim, whose
   ``render`` also computes the gel's deformation from the object's height map;
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import subprocess
 import sys
 from importlib.metadata import version
@@ -62,7 +63,7 @@ def main() -> None:
             protrusion = (gap.max() - gap).astype(np.float32)
             cases = {
                 "render": lambda i=None: ren.render(imp, markers, seed=1),
-                "render, bare": lambda i=None: ren.render(imp, None, noise=False),
+                "render bare": lambda i=None: ren.render(imp, None, noise=False),
                 "press+render": lambda i=None: ren.render(
                     press(protrusion, prof, "fast", depth_mm=depth).depth_mm, markers, seed=1),
             }
@@ -73,7 +74,7 @@ def main() -> None:
                     continue
                 stats = time_frames(fn, args.warmup, args.frames)
                 img = fn()
-                tag = variant.replace(", ", "-").replace("+", "-").replace(" (", "-").replace(")", "")
+                tag = re.sub(r"[^a-z0-9]+", "-", variant).strip("-")
                 png = os.path.join(args.png_dir, f"peer_ours_{name}_{tag}_{w}x{h}.png")
                 write_png(png, img)
                 results.append({"peer": "gelsim", "variant": variant, "scene": name, "width": w, "height": h,
