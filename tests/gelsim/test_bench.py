@@ -113,7 +113,9 @@ def test_shortcut_study_rows():
     res = bench.run_bench(cfg)
     rows = {r["variant"]: r for r in res["shortcuts"]}
     assert set(rows) == {"all shortcuts", "no shortcuts", "labels only"}
-    assert rows["no shortcuts"]["max_abs_dn"] <= 1
+    # at this coarse grid the pyramid's touched window is up to 3% off the full frame's (gel.py; see
+    # test_shortcuts.test_pyramid_touched_window_equals_full): a few DN on the sphere's rim
+    assert rows["no shortcuts"]["max_abs_dn"] <= 4 and rows["no shortcuts"]["max_marker_px"] < 0.05
     assert rows["labels only"]["stages_ms"]["optics"] == 0 and rows["labels only"]["stages_ms"]["imprint"] == 0
     assert rows["all shortcuts"]["stages_ms"]["imprint"] > 0
 

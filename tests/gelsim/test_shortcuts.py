@@ -2,8 +2,9 @@
 
 Tolerances (stated in gelsim/sequence.py): frames within 1 DN of the full computation
 (a quantisation step: sub-DN float differences may round either way), markers within
-2 * NEGLIGIBLE_PX, pyramid indentation and contact area within 1%, elastic depth within 2%
-of the peak.
+2 * NEGLIGIBLE_PX, pyramid indentation and contact area within 1% on these fabric presses
+(up to 3% on a sphere at coarse grids: gel.py's touched window, see the xfail below), elastic
+depth within 2% of the peak.
 """
 from __future__ import annotations
 
@@ -168,3 +169,19 @@ def test_bad_outputs_and_missing_object(setup):
     short = dataclasses.replace(motions["press"], num_frames=T + 1)
     with pytest.raises(GelsimError, match="contact has"):
         list(render_sequence(fabric, short, profile, fid, seed=0, contact=contacts["press"]))
+
+
+@pytest.mark.xfail(strict=True, reason="gel.py press(window='touched') differs from window='full' for the pyramid "
+                                       "model on 96x72 and 160x120 work grids: 10 mm sphere, 0.5 N, vitac at 160x120, "
+                                       "balanced: indentation 0.3624 vs 0.3656 mm (0.9%), 0.3656 vs 0.3551 mm (3%) at "
+                                       "96x72; equal at 320x240 and 640x480")
+def test_pyramid_touched_window_equals_full():
+    from gelsim import indenters
+    from gelsim.gel import press
+
+    for w in (96, 160):
+        p = load_profile("vitac").with_resolution(w)
+        prot = indenters.sphere(10.0, p)
+        a = press(prot, p, get_fidelity("balanced"), force_n=0.5)
+        b = press(prot, p, get_fidelity("balanced"), force_n=0.5, window="full")
+        assert a.indentation_mm == pytest.approx(b.indentation_mm, rel=1e-3)
