@@ -288,7 +288,8 @@ GEL_RANGES = dict(thickness_mm=(0.1, 20.0), young_modulus_mpa=(1e-3, 100.0), poi
 
 
 def _log_uniform(lo, hi):
-    return st.floats(math.log(lo), math.log(hi)).map(math.exp)
+    # exp(log(hi)) may round above hi: clamp into the range
+    return st.floats(math.log(lo), math.log(hi)).map(lambda v: min(max(math.exp(v), lo), hi))
 
 
 @PROPS
