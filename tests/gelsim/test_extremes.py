@@ -29,7 +29,8 @@ from gelsim.sequence import PHYSICS_MM_PER_PX, SequenceOutput, render_sequence
 FAST = get_fidelity("fast")
 BAL = get_fidelity("balanced")
 ELASTIC = dataclasses.replace(BAL, imprint_model="elastic")
-PROPS = settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# derandomize: the default suite stays reproducible (set it False locally to explore further)
+PROPS = settings(max_examples=20, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 
 
 @pytest.fixture(scope="module")
