@@ -523,7 +523,7 @@ def markdown_table(result: dict) -> str:
 
 def pareto_plot(result: dict, path: Path) -> None:
     """Image L1 and marker error against CPU ms per frame (log; steadier than wall time on a
-    shared machine), one point per level, plus the shortcut level without its shortcuts."""
+    shared machine), one point per level."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -538,14 +538,7 @@ def pareto_plot(result: dict, path: Path) -> None:
         ax.plot(xs, ys, "-o", color="tab:blue")
         for i, lv in enumerate(levels):  # staggered labels: neighbouring levels may nearly coincide
             ax.annotate(lv["name"], (lv["cpu_ms_per_frame"], lv[key]), textcoords="offset points",
-                        xytext=(6, 6 + 11 * (i % 2)))
-        for r in result.get("shortcuts", []):
-            if r["variant"] == "no shortcuts":
-                base = next((lv for lv in levels if lv["name"] == r["level"]), None)
-                if base is not None:
-                    ax.plot([r["cpu_ms_per_frame"]], [base[key]], "x", color="tab:red")
-                    ax.annotate(f"{r['level']}, no shortcuts", (r["cpu_ms_per_frame"], base[key]),
-                                textcoords="offset points", xytext=(6, -14), color="tab:red")
+                        xytext=(8, 8 if i % 2 == 0 else -14))
         ax.set_xscale("log")
         ax.set_xlabel("CPU ms per frame, end to end (log)")
         ax.set_ylabel(label)
