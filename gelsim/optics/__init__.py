@@ -107,6 +107,7 @@ class Renderer:
         else:
             from .pyrender_backend import PyrenderShader
             self._shader = PyrenderShader(self._fine, maps)
+        self._bufs: dict[str, np.ndarray] = {}
         n = profile.noise
         self._noise = NoiseBank(profile.shape, n.read_sigma_dn, n.shot_gain, self.seed)
 
@@ -120,12 +121,19 @@ class Renderer:
 
     def render_float(self, depth_mm: np.ndarray | None, markers=None) -> np.ndarray:
         """The noiseless, unquantised frame: float32 ``(H, W, 3)`` DN (may leave 0-255 before saturation)."""
-        frame = self._compose(depth_mm, markers)
-        return frame.copy() if frame is self._bg else frame
+        return self._compose(depth_mm, markers).copy()
+
+    def _work(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        """A float32 work array kept between frames: a fresh 8 MB array per frame costs about
+        1 ms of page faults at 960x720, and the frame's passes are memory-bound."""
+        buf = self._bufs.get(name)
+        if buf is None or buf.shape != shape:
+            buf = self._bufs[name] = np.empty(shape, np.float32)
+        return buf
 
     def _compose(self, depth_mm, markers) -> np.ndarray:
-        """Like :meth:`render_float`, but returns the cached background itself (not a copy) when
-        nothing changes it: callers must not modify the result."""
+        """Like :meth:`render_float`, but returns the cached background itself, or a work buffer
+        that the next frame overwrites: callers must not modify or keep the result."""
         depth = check_depth(depth_mm, self.profile.shape)
         corners = marker_corners(markers) if self.profile.markers.enabled else None
         s = self.supersample
@@ -136,18 +144,39 @@ class Renderer:
             if corners is not None:
                 # pixel centres at integers at both resolutions: x_fine = s (x + 1/2) - 1/2
                 corners = s * (corners + 0.5) - 0.5
-        res = None if depth is None else self._shader.delta(depth, margin_px=blur_radius_px(self._blur_fine))
-        if res is None and corners is None:
+        parts = None if depth is None else self._shader_parts(depth)
+        if parts is None and corners is None:
             return self._bg
-        frame = self._bg_fine.copy()
-        if res is not None:
-            roi, delta = res
-            frame[roi] += gaussian_blur(delta, self._blur_fine)
+        bg = self._bg_fine
+        frame = self._work("frame", bg.shape)
+        fresh = True
+        for roi, change, blurred in parts or ():
+            if not blurred:
+                change = gaussian_blur(change, self._blur_fine, self._work("blur", change.shape))
+            if fresh and change.shape == bg.shape:
+                cv2.add(bg, change, frame)          # a whole-frame change: no copy of the background
+            else:
+                if fresh:
+                    np.copyto(frame, bg)
+                region = frame[roi]
+                cv2.add(region, change, region)
+            fresh = False
+        if fresh:
+            np.copyto(frame, bg)
         if corners is not None:
             darken_markers(frame, corners, self.profile.markers.darkness, self._blur_fine)
         if s > 1:
             frame = cv2.resize(frame, self.profile.shape[::-1], interpolation=cv2.INTER_AREA)
         return frame
+
+    def _shader_parts(self, depth: np.ndarray):
+        """The shader's shading change as ``[(roi, change, blurred)]`` (see ``LutShader.parts``), or None."""
+        margin = blur_radius_px(self._blur_fine)
+        parts = getattr(self._shader, "parts", None)
+        if parts is not None:
+            return parts(depth, margin, self._blur_fine)
+        res = self._shader.delta(depth, margin_px=margin)
+        return None if res is None else [(res[0], res[1], False)]
 
     def render(self, depth_mm: np.ndarray | None, markers=None, *, seed: int | np.random.Generator = 0,
                noise: bool = True) -> np.ndarray:

@@ -17,12 +17,13 @@ def blur_radius_px(sigma_px: float) -> int:
     return int(math.ceil(3.0 * sigma_px)) if sigma_px > 0 else 0
 
 
-def gaussian_blur(img: np.ndarray, sigma_px: float) -> np.ndarray:
-    """Camera blur; identity for ``sigma_px == 0``. Borders replicate (the gel continues past the image)."""
+def gaussian_blur(img: np.ndarray, sigma_px: float, dst: np.ndarray | None = None) -> np.ndarray:
+    """Camera blur; identity for ``sigma_px == 0``. Borders replicate (the gel continues past the image).
+    ``dst``: an array of ``img``'s shape and type to write into (reused buffers avoid page faults)."""
     if sigma_px <= 0:
         return img
     k = 2 * blur_radius_px(sigma_px) + 1
-    return cv2.GaussianBlur(img, (k, k), sigma_px, borderType=cv2.BORDER_REPLICATE)
+    return cv2.GaussianBlur(img, (k, k), sigma_px, dst, borderType=cv2.BORDER_REPLICATE)
 
 
 def marker_corners(markers) -> np.ndarray | None:
@@ -149,6 +150,9 @@ class NoiseBank:
     def apply(self, frame: np.ndarray, seed: int | np.random.Generator) -> np.ndarray:
         """``frame`` (float32 ``(H, W, 3)`` DN, not modified) plus noise, as a new uint8 array."""
         z = self.pick(seed)
+        if self.shot_gain == 0:
+            # constant sigma: one saturating pass (4x faster than the general per-pixel sigma)
+            return cv2.addWeighted(frame, 1.0, z, math.sqrt(self.read_var), 0.0, dtype=cv2.CV_8U)
         var = cv2.addWeighted(frame, self.shot_gain, frame, 0.0, self.read_var)
         cv2.max(var, 0.0, var)   # a dark pixel below 0 DN has no shot noise
         cv2.sqrt(var, var)
