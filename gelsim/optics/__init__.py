@@ -144,12 +144,16 @@ class Renderer:
             if corners is not None:
                 # pixel centres at integers at both resolutions: x_fine = s (x + 1/2) - 1/2
                 corners = s * (corners + 0.5) - 0.5
-        parts = None if depth is None else self._shader_parts(depth)
-        if parts is None and corners is None:
-            return self._bg
         bg = self._bg_fine
         frame = self._work("frame", bg.shape)
-        fresh = True
+        compose = getattr(self._shader, "compose", None)
+        parts, fresh = None, True
+        if depth is not None and compose is not None:
+            fresh = not compose(frame, bg, depth, blur_radius_px(self._blur_fine), self._blur_fine, gaussian_blur)
+        elif depth is not None:
+            parts = self._shader_parts(depth)
+        if fresh and parts is None and corners is None:
+            return self._bg
         for roi, change, blurred in parts or ():
             if not blurred:
                 change = gaussian_blur(change, self._blur_fine, self._work("blur", change.shape))

@@ -91,20 +91,23 @@ def darken_markers(frame: np.ndarray, corners: np.ndarray, darkness: float, blur
         return
     lo, cov = marker_coverage(corners, radius + 1)
     n, p, _ = cov.shape
+    # side by side in one strip: each patch has >= radius zero columns at both ends,
+    # so the blur does not mix neighbouring patches
+    strip = np.ascontiguousarray(cov.transpose(1, 0, 2).reshape(p, n * p))
     if radius:
-        # side by side in one strip: each patch has >= radius zero columns at both ends,
-        # so the blur does not mix neighbouring patches
-        strip = np.ascontiguousarray(cov.transpose(1, 0, 2).reshape(p, n * p))
-        cov = gaussian_blur(strip, blur_sigma_px).reshape(p, n, p).transpose(1, 0, 2)
-    factor = 1.0 - darkness * cov
+        strip = gaussian_blur(strip, blur_sigma_px)
+    strip = cv2.addWeighted(strip, -darkness, strip, 0.0, 1.0)        # 1 - darkness * coverage
     # repeated to 3 channels once: a same-shape multiply per patch is 3x faster than broadcasting
-    factor = np.repeat(factor[..., None], frame.shape[2], axis=-1)
+    factor = cv2.merge([strip] * frame.shape[2]) if frame.shape[2] <= 4 else \
+        np.repeat(strip[..., None], frame.shape[2], axis=-1)
     for i, (x0, y0) in enumerate(lo.tolist()):
         ax, ay = max(x0, 0), max(y0, 0)
         bx, by = min(x0 + p, w), min(y0 + p, h)
         if bx <= ax or by <= ay:
             continue
-        frame[ay:by, ax:bx] *= factor[i, ay - y0:by - y0, ax - x0:bx - x0]
+        c0 = i * p
+        region = frame[ay:by, ax:bx]
+        np.multiply(region, factor[ay - y0:by - y0, c0 + ax - x0:c0 + bx - x0], out=region)
 
 
 def to_uint8(frame: np.ndarray) -> np.ndarray:

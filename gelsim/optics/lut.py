@@ -375,6 +375,41 @@ class LutShader:
                 out.append((big, sh, True))
         return out
 
+    def compose(self, frame: np.ndarray, bg: np.ndarray, depth_mm: np.ndarray, margin_px: int,
+                blur_sigma_px: float, blur) -> bool:
+        """The renderer's fused pass: ``frame = bg + blur(table change) + shadows`` (float32 ``(H, W, 3)``
+        DN, written in place); False (``frame`` untouched) for a flat gel.
+
+        ``blur(img, sigma, dst)`` is the camera blur. The table's change is computed, blurred and
+        added in bands of rows, each with the blur's radius of extra rows on both sides, so that its
+        work arrays stay in the cache: the frame's passes are memory-bound at 960x720. The shadows
+        come blurred by the camera already (see :meth:`parts`)."""
+        roi, big = self._boxes(depth_mm, margin_px, blur_sigma_px)
+        if roi is None:
+            return False
+        if frame[roi].shape != frame.shape:
+            np.copyto(frame, bg)
+        d = depth_mm[roi]
+        h, w = d.shape
+        offx, offy = self._offx[roi], self._offy[roi]
+        fr, bgr = frame[roi], bg[roi]
+        r = int(math.ceil(3.0 * blur_sigma_px)) if blur_sigma_px > 0 else 0
+        band = self.BAND_ROWS
+        for y0 in range(0, h, band):
+            y1 = min(h, y0 + band)
+            l0, l1 = max(0, y0 - r), min(h, y1 + r)          # table rows the blur reads
+            a, b = max(0, l0 - 1), min(h, l1 + 1)            # depth rows the gradient reads
+            lut = self._buffer("band_lut", (l1 - l0, w, 3))
+            self._shade_band(d[a:b], l0 - a, l1 - l0, offx[l0:l1], offy[l0:l1], lut)
+            sm = blur(lut, blur_sigma_px, self._buffer("band_blur", lut.shape))
+            cv2.add(bgr[y0:y1], sm[y0 - l0:y1 - l0], fr[y0:y1])
+        if self.shadow is not None:
+            sh = self._shadows(depth_mm[big], blur_sigma_px)
+            if sh is not None:
+                region = frame[big]
+                cv2.add(region, sh, region)
+        return True
+
     def shade(self, d: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
         """Colour change float32 ``(h, w, 3)`` DN of imprint ``d`` (mm) at positions ``xn, yn`` (-1..1, ``(h, w)``)."""
         out = self.shade_table(d, xn, yn)
