@@ -12,15 +12,28 @@ import numpy as np
 from .field import LightMaps, vignetting_map
 
 
-def imprint_roi(depth_mm: np.ndarray, margin_px: int) -> tuple[slice, slice] | None:
-    """Row and column slices of the bounding box where ``depth_mm > 0``, grown by ``margin_px``; None if flat."""
+def imprint_extent(depth_mm: np.ndarray) -> tuple[int, int, int, int] | None:
+    """``(row0, row1, col0, col1)``, end exclusive, of the box where ``depth_mm > 0``; None if flat."""
     rows = np.flatnonzero(depth_mm.max(axis=1) > 0)
     if rows.size == 0:
         return None
     cols = np.flatnonzero(depth_mm[rows[0]:rows[-1] + 1].max(axis=0) > 0)
-    h, w = depth_mm.shape
-    return (slice(max(0, rows[0] - margin_px), min(h, rows[-1] + 1 + margin_px)),
-            slice(max(0, cols[0] - margin_px), min(w, cols[-1] + 1 + margin_px)))
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+
+
+def grow_extent(extent, margin_px: int, shape: tuple[int, int]) -> tuple[slice, slice] | None:
+    """Slices of ``extent`` (:func:`imprint_extent`) grown by ``margin_px`` within ``shape``."""
+    if extent is None:
+        return None
+    r0, r1, c0, c1 = extent
+    h, w = shape
+    return (slice(max(0, r0 - margin_px), min(h, r1 + margin_px)),
+            slice(max(0, c0 - margin_px), min(w, c1 + margin_px)))
+
+
+def imprint_roi(depth_mm: np.ndarray, margin_px: int) -> tuple[slice, slice] | None:
+    """Row and column slices of the bounding box where ``depth_mm > 0``, grown by ``margin_px``; None if flat."""
+    return grow_extent(imprint_extent(depth_mm), margin_px, depth_mm.shape)
 
 
 class FastShader:

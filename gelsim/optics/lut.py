@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 
 from ..errors import GelsimError
-from .fast import imprint_roi
+from .fast import grow_extent, imprint_extent
 from .field import pixel_grid_mm
 
 
@@ -227,15 +227,24 @@ def _upsample(small: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndar
 
 def _occlusion_factors(depth: np.ndarray, mm_per_px: float, dirs_deg, tans, sat_mm: float,
                        factor: int) -> np.ndarray:
-    """Unblurred shadow darkness ``o_k / (o_k + sat_mm)`` per direction on the grid: float32 ``(h', w', K)``."""
+    """Unblurred shadow darkness ``o_k / (o_k + sat_mm)`` per direction on the grid: float32 ``(h', w', K)``;
+    None when no direction casts any shadow."""
     hg = _grid_heights(depth, factor)
     slopes = grid_slopes(hg)
     sat = float(sat_mm)
-    chans = []
+    chans, lit = [], False
     for phi, tan_e in zip(dirs_deg, tans):
-        occ = occlusion_grid(hg, float(phi), float(tan_e) * mm_per_px * factor, slopes)
+        rise = float(tan_e) * mm_per_px * factor
+        if abs(math.cos(math.radians(phi))) * slopes[0] + abs(math.sin(math.radians(phi))) * slopes[1] < rise:
+            chans.append(None)                  # no shadow this way (see occlusion_grid)
+            continue
+        occ = occlusion_grid(hg, float(phi), rise, slopes)
         den = cv2.add(occ, sat)
         chans.append(cv2.divide(occ, den))
+        lit = True
+    if not lit:
+        return None
+    chans = [np.zeros(hg.shape, np.float32) if c is None else c for c in chans]
     return chans[0][..., None] if len(chans) == 1 else cv2.merge(chans)
 
 
@@ -255,6 +264,9 @@ def shadow_factors(depth: np.ndarray, mm_per_px: float, dirs_deg, tans, sat_mm: 
     """
     factor = _grid_factor(scale)
     f = _occlusion_factors(depth, mm_per_px, dirs_deg, tans, sat_mm, factor)
+    if f is None:
+        h, w = depth.shape
+        f = np.zeros((-(-h // factor), -(-w // factor), len(dirs_deg)), np.float32)
     hs, ws = f.shape[:2]
     sigma = soft_mm / mm_per_px * scale
     if sigma > 0.3:     # below a third of a grid pixel a blur changes nothing visible
@@ -331,7 +343,8 @@ class LutShader:
     def _boxes(self, depth_mm: np.ndarray, margin_px: int, blur_px: float = 0.0):
         """The table's box and the (larger) shadows' box, or None for a flat gel."""
         margin = self.margin_px + margin_px
-        roi = imprint_roi(depth_mm, margin)
+        extent = imprint_extent(depth_mm)
+        roi = grow_extent(extent, margin, depth_mm.shape)
         if roi is None or self.shadow is None:
             return roi, roi
         s = self.shadow
@@ -340,7 +353,7 @@ class LutShader:
         # a shadow ends depth / tan(elevation) beyond its occluder; its blur reaches 3 sigma further
         soft_px = math.hypot(s["shadow_soft_mm"] / mm, blur_px)
         reach = int(math.ceil(dmax / max(float(np.min(s["shadow_tan"])), 1e-3) / mm + 3.0 * soft_px))
-        return roi, imprint_roi(depth_mm, margin + reach)
+        return roi, grow_extent(extent, margin + reach, depth_mm.shape)
 
     def delta(self, depth_mm: np.ndarray, margin_px: int = 0):
         """``(roi, delta)``: slices of the shaded box and float32 ``(h, w, 3)`` DN change there; None if flat.
@@ -429,9 +442,9 @@ class LutShader:
         mm = self.profile.image.mm_per_px
         factor = _grid_factor(SHADOW_SCALE)
         f = _occlusion_factors(d, mm, s["shadow_dirs_deg"], s["shadow_tan"], s["shadow_sat_mm"], factor)
-        hs, ws, k = f.shape
-        if not f.any():
+        if f is None or not f.any():
             return None
+        hs, ws, k = f.shape
         if k <= 4:      # cv2.transform mixes up to 4 channels per pixel, several times faster than a matmul
             small = cv2.transform(f, self._shadow_mix).reshape(hs, ws, 3)
         else:
