@@ -9,7 +9,7 @@ physics timestep (force error), imprint scale and model, supersampling and rende
 (image L1) and the marker model (marker error). The knobs whose cost grows with the pixel
 count (imprint scale, marker model) are swept again at ``--hires`` (the ViTac camera's
 960x720 by default), where their cost matters. Writes convergence.json, convergence.md and
-convergence.png under --out and copies the plot to --png; docs/fidelity.md discusses the figures. About 10 minutes on
+convergence.png under --out and copies the plot to --png; docs/fidelity.md discusses the figures. 2-10 minutes on
 2 shared cores.
 """
 from __future__ import annotations
