@@ -54,7 +54,8 @@ def _pretrain(args) -> int:
 
     res = pretrain(args.data, args.out, width=args.width, image_size=args.image_size, epochs=args.epochs,
                    batch_size=args.batch_size, lr=args.lr, optimizer=args.optimizer, seed=args.seed, contact_only=not args.all_frames,
-                   device=args.device, progress=not args.quiet, log=None if args.json or args.quiet else print)
+                   device=args.device, progress=not args.quiet, crop=args.crop,
+                   log=None if args.json or args.quiet else print)
     if args.json:
         print_json(res)
     else:
@@ -149,6 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="output directory (writes backbone.pt)")
     s.add_argument("--width", type=float, default=1.0, help="AlexNet channel multiplier")
     s.add_argument("--image-size", type=int, default=224, help="input side in px")
+    s.add_argument("--crop", type=float, default=1.0,
+                   help="keep a centred square of this fraction of the frame's shorter side before resizing")
     s.add_argument("--epochs", type=int, default=10, help="epochs")
     s.add_argument("--batch-size", type=int, default=64, help="frames per step")
     s.add_argument("--lr", type=float, default=0.001, help="learning rate (cosine decay)")

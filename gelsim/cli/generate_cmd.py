@@ -21,7 +21,7 @@ def register(sub) -> None:
             "seed, so the output is the same for any --workers. Interrupted (Ctrl-C, kill -9), rerun the same\n"
             "command to finish without redoing finished sequences.\n\n"
             "Presets: quick = 10 fabrics x 3 sequences at 320x240, fast (about a minute; `make demo`);\n"
-            "         cpu   = 100 fabrics x 12 sequences at 160x120, fast (sized for `stam experiment --preset cpu`).\n"
+            "         cpu   = 100 fabrics x 10 sequences at 320x240, balanced (sized for `stam experiment --preset cpu`).\n"
             "Options given with a preset override it."),
     )
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (new, empty, or a dataset to resume)")
