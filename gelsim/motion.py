@@ -149,6 +149,10 @@ def load_motion_ranges(path: str | Path | None = None) -> MotionRanges:
     return build(MotionRanges, load_toml(path), where=path.name)
 
 
+MAX_TWIST_DEG = 180.0   # TwistRanges.angle_deg's upper bound
+MAX_SLIP_MM = 100.0     # far past any hand-held slide; bounds the fabric patch the pipeline generates
+
+
 @dataclass(frozen=True)
 class Motion:
     """One hand-held sensor motion. Lengths mm, angles degrees, forces N, speeds mm/s."""
@@ -186,6 +190,12 @@ class Motion:
             raise GelsimError(f"contact_phase {self.contact_phase} must be in (0, 1)")
         if self.approach_speed_mm_s <= 0 or self.peak_force_n <= 0:
             raise GelsimError("approach_speed_mm_s and peak_force_n must be positive")
+        # The documented ranges of assets/motions.toml bound a twist to half a turn and a slip to
+        # a few centimetres; beyond them the fabric patch and the physics are not sized for it.
+        if abs(self.twist_deg) > MAX_TWIST_DEG:
+            raise GelsimError(f"twist_deg {self.twist_deg} is beyond +-{MAX_TWIST_DEG:g} degrees; give a smaller twist")
+        if not 0.0 <= self.slip_distance_mm <= MAX_SLIP_MM:
+            raise GelsimError(f"slip_distance_mm {self.slip_distance_mm} must be in 0-{MAX_SLIP_MM:g} mm")
 
     @property
     def contact_frames(self) -> int:

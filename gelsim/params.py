@@ -138,6 +138,14 @@ def build(cls: type[T], data: dict, where: str = "") -> T:
     return obj
 
 
+def check_ranges(obj: Any, where: str) -> None:
+    """Re-check the declared ranges of a parameter dataclass built in code (not from a file)."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            _check_number(value, f, f"{where}: {f.name}")
+
+
 def to_dict(obj: Any) -> Any:
     """Plain-data form of a parameter dataclass (tuples become lists), for JSON/TOML."""
     if dataclasses.is_dataclass(obj):

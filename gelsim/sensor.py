@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Literal
 
 from .errors import GelsimError
-from .params import ASSETS_DIR, build, load_toml, param
+from .params import ASSETS_DIR, build, check_ranges, load_toml, param
 
 SENSORS_DIR = ASSETS_DIR / "sensors"
 
@@ -163,6 +163,7 @@ class SensorProfile:
         scale = self.image.width_px / width_px
         image = dataclasses.replace(self.image, width_px=int(width_px), height_px=int(height_px),
                                     mm_per_px=self.image.mm_per_px * scale)
+        check_ranges(image, f"{self.name} at {width_px}x{height_px} px")
         return dataclasses.replace(self, image=image)
 
 

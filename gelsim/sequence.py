@@ -185,9 +185,9 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
         contact = simulate(motion, surface, profile, fidelity)
         t = timer.add("physics", t)
     if fabric is not None:
-        support = fabric.compressive_modulus_kpa / fabric.thickness_mm
+        support, support_len = fabric.support_stiffness_kpa_per_mm, fabric.support_length_mm
     else:
-        support = support_stiffness_kpa_per_mm
+        support, support_len = support_stiffness_kpa_per_mm, None
     # The image-resolution patch is the costliest fabric step: built only if some frame presses.
     touches = bool(np.any(contact.in_contact & (contact.normal_force_n > 0)))
     if patch is None and want_imprint and (touches or not shortcuts):
@@ -213,7 +213,7 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
                                 contact.position_mm[i, 1], contact.yaw_deg[i], tuple(contact.tilt_deg[i]))
             t = timer.add("fabric", t)
             imprint = press(prot, profile, fidelity, force_n=force if touching else 0.0,
-                            support_stiffness_kpa_per_mm=support, window=window)
+                            support_stiffness_kpa_per_mm=support, support_length_mm=support_len, window=window)
             indentation[i] = imprint.indentation_mm
             area[i] = imprint.contact_area_mm2
             t = timer.add("imprint", t)

@@ -142,6 +142,20 @@ class Fabric:
                 raise GelsimError(f"{where}.satin_step: {self.satin_step} does not make a satin with harness "
                                   f"{self.satin_harness}; use a step coprime with it, between 2 and harness - 2")
 
+    @property
+    def support_stiffness_kpa_per_mm(self) -> float:
+        """Through-thickness stiffness of the fabric layer under the texture, kPa per mm of compression."""
+        return self.compressive_modulus_kpa / self.thickness_mm
+
+    @property
+    def support_length_mm(self) -> float:
+        """Length over which the fabric layer shares load (Pasternak shear length), mm.
+
+        About the fabric's thickness: a yarn crown is held up by the cloth beneath it over
+        roughly that distance, so crowns keep their relief while the cloth compresses as a whole.
+        """
+        return self.thickness_mm
+
     def to_dict(self) -> dict:
         """Plain data, without the unused (None) geometry keys."""
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
