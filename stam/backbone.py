@@ -30,18 +30,27 @@ class AlexNetFeatures(nn.Module):
     At S = 224 px, (C, h, w) = (256 * width, 6, 6); at 160 px 4 x 4; at 128 px 3 x 3.
     """
 
-    def __init__(self, width: float = 1.0):
+    def __init__(self, width: float = 1.0, batchnorm: bool = False):
         super().__init__()
         c1, c2, c3, c4, c5 = (scaled(c, width) for c in ALEXNET_CHANNELS)
         self.out_channels = c5
+        self.width = width
+        self.batchnorm = batchnorm
+
+        def conv(cin, cout, **kw):
+            # BatchNorm only while pretraining from scratch; fold_batchnorm() merges it into the
+            # convolution afterwards, so every model still gets torchvision's plain AlexNet layers.
+            c = nn.Conv2d(cin, cout, **kw)
+            return [c, nn.BatchNorm2d(cout), nn.ReLU(inplace=True)] if batchnorm else [c, nn.ReLU(inplace=True)]
+
         self.features = nn.Sequential(
-            nn.Conv2d(3, c1, kernel_size=11, stride=4, padding=2), nn.ReLU(inplace=True),
+            *conv(3, c1, kernel_size=11, stride=4, padding=2),
             nn.MaxPool2d(kernel_size=3, stride=2),
-            nn.Conv2d(c1, c2, kernel_size=5, padding=2), nn.ReLU(inplace=True),
+            *conv(c1, c2, kernel_size=5, padding=2),
             nn.MaxPool2d(kernel_size=3, stride=2),
-            nn.Conv2d(c2, c3, kernel_size=3, padding=1), nn.ReLU(inplace=True),
-            nn.Conv2d(c3, c4, kernel_size=3, padding=1), nn.ReLU(inplace=True),
-            nn.Conv2d(c4, c5, kernel_size=3, padding=1), nn.ReLU(inplace=True),
+            *conv(c2, c3, kernel_size=3, padding=1),
+            *conv(c3, c4, kernel_size=3, padding=1),
+            *conv(c4, c5, kernel_size=3, padding=1),
             nn.MaxPool2d(kernel_size=3, stride=2),
         )
         # He initialisation: with PyTorch's default (uniform, gain 1/sqrt(3)) five ReLU layers
@@ -54,6 +63,28 @@ class AlexNetFeatures(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.features(x)
+
+
+def fold_batchnorm(net: AlexNetFeatures) -> AlexNetFeatures:
+    """The plain AlexNet (no BatchNorm) computing what ``net`` computes in eval mode.
+
+    Each BatchNorm after a convolution is an affine map per output channel,
+    ``y = (x - mean) / sqrt(var + eps) * gamma + beta``, so it folds into that
+    convolution's weight and bias.
+    """
+    plain = AlexNetFeatures(net.width)
+    if not net.batchnorm:
+        plain.load_state_dict(net.state_dict())
+        return plain
+    mods = list(net.features)
+    pairs = [(m, mods[i + 1]) for i, m in enumerate(mods) if isinstance(m, nn.Conv2d)]
+    convs = [m for m in plain.features if isinstance(m, nn.Conv2d)]
+    with torch.no_grad():
+        for dst, (conv, bn) in zip(convs, pairs):
+            scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+            dst.weight.copy_(conv.weight * scale[:, None, None, None])
+            dst.bias.copy_((conv.bias - bn.running_mean) * scale + bn.bias)
+    return plain
 
 
 def feature_size(image_size: int) -> int:
@@ -92,9 +123,10 @@ class AlexNetHead(nn.Module):
 class AlexNet(nn.Module):
     """Single-frame AlexNet classifier, used to pretrain the backbone (ImageNet's stand-in)."""
 
-    def __init__(self, num_classes: int, width: float = 1.0, pool: int = ALEXNET_POOL, dropout: float = 0.5):
+    def __init__(self, num_classes: int, width: float = 1.0, pool: int = ALEXNET_POOL, dropout: float = 0.5,
+                 batchnorm: bool = False):
         super().__init__()
-        self.backbone = AlexNetFeatures(width)
+        self.backbone = AlexNetFeatures(width, batchnorm=batchnorm)
         self.head = AlexNetHead(self.backbone.out_channels, num_classes, width, pool, dropout)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:

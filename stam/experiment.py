@@ -46,7 +46,8 @@ PAPER_TABLES = {
               "stam": [72.00, 72.20, 75.80, 76.61, 80.80, 80.20]},
 }
 PAPER_FRAMES = [2, 3, 4, 5, 6, 7]
-PRETRAIN_KEYS = ("width", "image_size", "epochs", "batch_size", "lr", "optimizer", "contact_only", "frame_stride")
+PRETRAIN_KEYS = ("width", "image_size", "epochs", "batch_size", "lr", "optimizer", "contact_only", "frame_stride",
+                 "batchnorm")
 SWEEP_KEYS = ("models", "frames", "settings", "seeds")
 
 

@@ -140,3 +140,23 @@ def test_build_rejects_bad_options():
         args = {"name": "stam", "n_frames": 2, "num_classes": 3, "width": 0.125, "image_size": 96} | kwargs
         with pytest.raises(GelsimError):
             build(**args)
+
+
+def test_fold_batchnorm_gives_the_same_plain_alexnet():
+    from stam.backbone import AlexNetFeatures, fold_batchnorm
+
+    torch.manual_seed(0)
+    bn = AlexNetFeatures(0.25, batchnorm=True)
+    bn.train()
+    for _ in range(3):  # give the running statistics non-trivial values
+        bn(torch.randn(4, 3, 96, 96) * 2 + 0.5)
+    for m in bn.features:
+        if isinstance(m, torch.nn.BatchNorm2d):
+            torch.nn.init.uniform_(m.weight, 0.5, 1.5)
+            torch.nn.init.uniform_(m.bias, -0.2, 0.2)
+    bn.eval()
+    plain = fold_batchnorm(bn)
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in plain.modules())
+    assert set(plain.state_dict()) == set(AlexNetFeatures(0.25).state_dict())
+    x = torch.randn(2, 3, 96, 96)
+    assert torch.allclose(plain(x), bn(x), atol=1e-4, rtol=1e-4)
