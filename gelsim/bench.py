@@ -566,14 +566,19 @@ def _write_text(path: Path, text: str) -> None:
 
 def write_reports(result: dict, out_dir: str | Path) -> dict[str, Path]:
     """Write bench.json, bench.md and bench_pareto.png under ``out_dir``; returns their paths."""
+    return _write_report(result, out_dir, "bench", "bench_pareto", markdown_table, pareto_plot)
+
+
+def _write_report(result: dict, out_dir: str | Path, stem: str, plot_stem: str, markdown, plot) -> dict[str, Path]:
+    """``stem``.json, ``stem``.md (from ``markdown(result)``) and ``plot_stem``.png (``plot(result, path)``)."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise GelsimError(f"--out {out} is a file; give a directory")
     out.mkdir(parents=True, exist_ok=True)
-    paths = {"json": out / "bench.json", "markdown": out / "bench.md", "plot": out / "bench_pareto.png"}
+    paths = {"json": out / f"{stem}.json", "markdown": out / f"{stem}.md", "plot": out / f"{plot_stem}.png"}
     _write_text(paths["json"], json.dumps(result, indent=1) + "\n")
-    _write_text(paths["markdown"], markdown_table(result))
-    pareto_plot(result, paths["plot"])
+    _write_text(paths["markdown"], markdown(result))
+    plot(result, paths["plot"])
     return paths
 
 
@@ -719,10 +724,4 @@ def convergence_plot(result: dict, path: Path) -> None:
 
 def write_convergence(result: dict, out_dir: str | Path) -> dict[str, Path]:
     """Write convergence.json, convergence.md and convergence.png under ``out_dir``."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = {"json": out / "convergence.json", "markdown": out / "convergence.md", "plot": out / "convergence.png"}
-    _write_text(paths["json"], json.dumps(result, indent=1) + "\n")
-    _write_text(paths["markdown"], convergence_markdown(result))
-    convergence_plot(result, paths["plot"])
-    return paths
+    return _write_report(result, out_dir, "convergence", "convergence", convergence_markdown, convergence_plot)

@@ -8,8 +8,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from gelsim.cli import HelpFormatter, print_json
-from gelsim.errors import GelsimError
+from gelsim.cli import HelpFormatter, dispatch, print_json
 
 from . import __version__
 
@@ -201,19 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "handler", None):
-        parser.print_help()
-        return 2
-    try:
-        return int(args.handler(args) or 0)
-    except GelsimError as e:
-        print(f"stam: error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("stam: interrupted; rerun the same command (train: with --resume) to continue", file=sys.stderr)
-        return 130
+    return dispatch(build_parser(), argv, interrupted="rerun the same command (train: with --resume) to continue")
 
 
 if __name__ == "__main__":

@@ -61,8 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+def dispatch(parser: argparse.ArgumentParser, argv: list[str] | None, *,
+             interrupted: str = "rerun the same command to continue") -> int:
+    """Parse ``argv`` and run the chosen command's handler with the CLI's error contract:
+    a GelsimError is one line on stderr and exit status 2; Ctrl-C exits 130 with ``interrupted``."""
     args = parser.parse_args(argv)
     if not getattr(args, "handler", None):
         parser.print_help()
@@ -70,11 +72,15 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.handler(args) or 0)
     except GelsimError as e:
-        print(f"gelsim: error: {e}", file=sys.stderr)
+        print(f"{parser.prog}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("gelsim: interrupted; rerun the same command to continue", file=sys.stderr)
+        print(f"{parser.prog}: interrupted; {interrupted}", file=sys.stderr)
         return 130
+
+
+def main(argv: list[str] | None = None) -> int:
+    return dispatch(build_parser(), argv)
 
 
 if __name__ == "__main__":
