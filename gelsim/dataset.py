@@ -143,6 +143,22 @@ def apportion(total: int, weights: Iterable[float]) -> list[int]:
     return counts.tolist()
 
 
+def interleave(total: int, weights: Iterable[float]) -> list[int]:
+    """``total`` choices among ``len(weights)`` options, every prefix as close to the weights as
+    possible (smooth weighted round-robin). With weights 7:1:2 each block of 10 holds exactly 7, 1
+    and 2, so a fabric with 10 or 50 sequences gets the exact ratio, and a small dataset spread over
+    many fabrics still contains every action."""
+    w = np.asarray(list(weights), dtype=np.float64)
+    current = np.zeros_like(w)
+    out = []
+    for _ in range(total):
+        current += w
+        k = int(np.argmax(current))
+        current[k] -= w.sum()
+        out.append(k)
+    return out
+
+
 def sequence_seed(seed: int, fabric_id: int, index: int) -> int:
     return int(np.random.SeedSequence([seed, fabric_id, index]).generate_state(1)[0])
 
@@ -154,10 +170,12 @@ def plan(config: GenerateConfig, catalog_size: int) -> list[SequenceSpec]:
     if config.sequences_per_fabric < 1:
         raise GelsimError("--sequences-per-fabric must be at least 1")
     specs = []
+    n = config.sequences_per_fabric
+    schedule = interleave(config.fabrics * n, config.actions)
     for fid in range(1, config.fabrics + 1):
-        n = config.sequences_per_fabric
-        counts = apportion(n, config.actions)
-        actions = [a for a, c in zip(ACTIONS, counts) for _ in range(c)]
+        # sorted, then shuffled by the fabric's own permutation below: the plan depends only on
+        # how many of each action a fabric gets (datasets made before interleaving keep their plan)
+        actions = [ACTIONS[k] for k in sorted(schedule[(fid - 1) * n: fid * n])]
         # Interleave actions deterministically so that any prefix of a fabric's sequences
         # (and so any split) mixes them.
         order_rng = np.random.default_rng([config.seed, fid, 1])

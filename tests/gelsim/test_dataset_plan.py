@@ -75,3 +75,17 @@ def test_parse_range_rejects(text, msg):
 def test_parse_resolution_rejects(text):
     with pytest.raises(GelsimError, match="--resolution"):
         parse_resolution(text)
+
+
+def test_small_datasets_still_contain_every_action():
+    specs = plan(GenerateConfig(fabrics=10, sequences_per_fabric=3), 100)
+    counts = Counter(s.action for s in specs)
+    assert counts == {"press": 21, "slip": 3, "twist": 6}
+
+
+def test_interleave_blocks_hold_the_exact_ratio():
+    from gelsim.dataset import interleave
+
+    seq = interleave(100, (7, 1, 2))
+    for b in range(10):
+        assert Counter(seq[10 * b: 10 * b + 10]) == {0: 7, 1: 1, 2: 2}
