@@ -62,10 +62,15 @@ class TimingRanges:
     release_tail_fraction: Range = param(doc="press: time after the release (lifted), fraction")
     settle_fraction: Range = param(doc="slip/twist: settling time after the rise, fraction")
     end_fraction: Range = param(doc="slip/twist: still time at the end, fraction")
+    late_start_fraction: float = param(0.0, lo=0.0, hi=1.0,
+                                       doc="share of sequences whose recording started well before the touch")
+    late_start_frames: tuple[int, int] = param((0, 0), doc="their pre-contact frames, [low, high] inclusive")
 
     def validate(self, where: str) -> None:
-        if not 0 <= self.precontact_frames[0] <= self.precontact_frames[1]:
-            raise GelsimError(f"{where}.precontact_frames: need 0 <= low <= high, got {self.precontact_frames}")
+        for name in ("precontact_frames", "late_start_frames"):
+            lo, hi = getattr(self, name)
+            if not 0 <= lo <= hi:
+                raise GelsimError(f"{where}.{name}: need 0 <= low <= high, got {(lo, hi)}")
         _check_range(f"{where}.contact_phase", self.contact_phase, 0.01, 0.99)
         for name in ("rise_fraction", "hold_fraction", "release_tail_fraction", "settle_fraction", "end_fraction"):
             _check_range(f"{where}.{name}", getattr(self, name), 0.0, 1.0)
@@ -244,7 +249,10 @@ def sample_motion(action: str, seed: int | np.random.Generator, *, frames: tuple
         raise GelsimError(f"unknown action {action!r}; choose press, slip, twist or random")
     if not 1 <= frames[0] <= frames[1]:
         raise GelsimError(f"frames {frames}: need 1 <= low <= high")
-    pre = precontact if precontact is not None else ranges.timing.precontact_frames
+    timing = ranges.timing
+    # Drawn always, so that an explicit precontact does not shift the rest of the random stream.
+    late = rng.random() < timing.late_start_fraction
+    pre = precontact if precontact is not None else (timing.late_start_frames if late else timing.precontact_frames)
     if not 0 <= pre[0] <= pre[1]:
         raise GelsimError(f"precontact {pre}: need 0 <= low <= high")
     num_frames = int(rng.integers(frames[0], frames[1] + 1))

@@ -34,9 +34,13 @@ def test_action_ratios_follow_vitac():
 
 def check_in_range(m: Motion, frames=(25, 36), pre=None) -> None:
     r = RANGES
-    pre = pre or r.timing.precontact_frames
     assert frames[0] <= m.num_frames <= frames[1]
-    assert pre[0] <= m.precontact_frames <= pre[1]
+    if pre is None:  # the default mixture: early starts, or a late start for some sequences
+        t = r.timing
+        assert (t.precontact_frames[0] <= m.precontact_frames <= t.precontact_frames[1]
+                or t.late_start_frames[0] <= m.precontact_frames <= t.late_start_frames[1])
+    else:
+        assert pre[0] <= m.precontact_frames <= pre[1]
     assert math.hypot(*m.start_xy_mm) <= r.approach.start_offset_mm + 1e-9
     assert 0 <= m.fabric_rotation_deg < 360
     assert r.approach.speed_mm_s[0] <= m.approach_speed_mm_s <= r.approach.speed_mm_s[1]
@@ -121,3 +125,15 @@ def test_bad_ranges_file(tmp_path):
     with pytest.raises(GelsimError, match="bogus_hz"):
         load_motion_ranges(bad)
     assert RANGES_FILE.exists()
+
+
+def test_default_precontact_mixture_shares():
+    from collections import Counter as C
+
+    t = RANGES.timing
+    n = 2000
+    pre = C(sample_motion("press", s, ranges=RANGES).precontact_frames for s in range(n))
+    late = sum(v for k, v in pre.items() if k >= t.late_start_frames[0]) / n
+    assert late == pytest.approx(t.late_start_fraction, abs=0.03)
+    assert set(pre) <= set(range(t.precontact_frames[0], t.precontact_frames[1] + 1)) | \
+        set(range(t.late_start_frames[0], t.late_start_frames[1] + 1))
