@@ -471,7 +471,9 @@ def _weave(profile, base_mm, amp_mm):
 # centres for the spatial terms, 1/32-bin fixed-point remap coordinates, bilinear window doubling
 # for the shadows). Against the previous renderer (9-channel remap, rotated shadows) the frames
 # differ by a mean of 0.003-0.11 DN and at most 0.70 DN, 1 DN after quantisation.
-LUT_MEAN_TOL_DN, LUT_MAX_TOL_DN = 0.15, 1.0
+# With 30 x 24 tiles (lut.MOSAIC_TILES) the steepest scene, a weave with shadows, differs by a
+# mean of 0.17 DN and at most 0.91 DN: below one 8-bit step and the camera's 0.92 DN read noise.
+LUT_MEAN_TOL_DN, LUT_MAX_TOL_DN = 0.25, 1.0
 
 
 @pytest.mark.parametrize("scene", ["sphere", "steep sphere", "weave with shadows", "gentle weave"])
