@@ -34,6 +34,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from gelsim import indenters  # noqa: E402
+from gelsim.runtime import configure_worker  # noqa: E402
 from gelsim.fabrics import heightfield, load_catalog  # noqa: E402
 from gelsim.fidelity import get_fidelity  # noqa: E402
 from gelsim.gel import fit_pyramid_law, press, write_law  # noqa: E402
@@ -106,7 +107,7 @@ def main(argv=None) -> int:
     ap.add_argument("--fit", action="store_true", help="refit the pyramid law and rewrite assets/imprint_law.toml")
     ap.add_argument("--agreement", action="store_true", help="fast models vs elastic on seven fabrics (table)")
     args = ap.parse_args(argv)
-    cv2.setNumThreads(1)
+    configure_worker()
     if args.fit:
         res = fit_pyramid_law()
         write_law(res)

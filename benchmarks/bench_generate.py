@@ -36,9 +36,9 @@ def main() -> int:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
-    import cv2
+    from gelsim.runtime import configure_worker
 
-    cv2.setNumThreads(1)
+    configure_worker()
     res = tuple(int(v) for v in args.resolution.split("x")) if args.resolution else None
     cfg = GenerateConfig(fabrics=args.fabrics, sequences_per_fabric=args.sequences_per_fabric,
                          fidelity=args.fidelity, resolution=res)

@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from gelsim.runtime import configure_worker  # noqa: E402
 from gelsim.optics import Renderer, available_backends  # noqa: E402
 from gelsim.sensor import load_profile  # noqa: E402
 
@@ -103,7 +104,7 @@ def with_shading(profile, model: str):
 def run(reps: int = 30, gl_reps: int = 3, backends=("fast",), profile_name: str = "vitac",
         shadings=("lut", "phong"), fabric_id: int = 12, force_n: float = 3.0) -> dict:
     """All cases as one dict (what ``--json`` prints)."""
-    cv2.setNumThreads(1)
+    configure_worker()
     base = load_profile(profile_name)
     scenes = {"flat": None, "sphere press": sphere_depth(base),
               "full-frame fabric": fabric_depth(base, fabric_id, force_n)}

@@ -43,6 +43,7 @@ import numpy as np
 
 from .contact import ContactFrames, Surface, simulate
 from .errors import GelsimError
+from .runtime import configure_worker
 from .fidelity import Fidelity, fidelity_levels, get_fidelity
 from .motion import ACTIONS, Motion, sample_motion
 from .sensor import SensorProfile, load_profile
@@ -347,7 +348,7 @@ def run_bench(config: BenchConfig = BenchConfig(), progress: Callable[[str], Non
     from .fabrics import load_catalog
 
     config.validate()
-    cv2.setNumThreads(1)  # timings are per core, like a `gelsim generate` worker
+    configure_worker()  # timings are per core, like a `gelsim generate` worker
     say = progress or (lambda s: None)
     t_start, c_start = time.perf_counter(), time.process_time()
     profile = _bench_profile(config)
@@ -610,7 +611,7 @@ def run_convergence(config: BenchConfig = BenchConfig(), base: str = "balanced",
     from .fabrics import load_catalog
 
     config.validate()
-    cv2.setNumThreads(1)
+    configure_worker()
     say = progress or (lambda s: None)
     t_start = time.perf_counter()
     profile = _bench_profile(config)

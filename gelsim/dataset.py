@@ -278,10 +278,10 @@ _WORKER: dict[str, Any] = {}
 
 
 def _worker_init(config: GenerateConfig, root: str) -> None:
-    import cv2
+    from .runtime import configure_worker
 
-    # One process per core: nested threading in OpenCV or torch would oversubscribe.
-    cv2.setNumThreads(1)
+    # One process per core (OpenCV on one thread; frame arrays reused from the heap).
+    configure_worker()
     from .fabrics import load_catalog
     from .fidelity import get_fidelity
     from .motion import load_motion_ranges

@@ -18,11 +18,13 @@ DEFAULT_LEVEL = "balanced"
 class Fidelity:
     name: str
     physics_dt_s: float = param(lo=1e-6, hi=0.02, doc="MuJoCo timestep, s")
-    imprint_model: Literal["pyramid", "elastic"] = param(doc="gel imprint model")
+    imprint_model: Literal["twoscale", "pyramid", "elastic"] = param(doc="gel imprint model")
     imprint_scale: float = param(lo=0.05, hi=1.0, doc="imprint resolution relative to the image")
     marker_model: Literal["gaussian", "elastic"] = param(doc="marker displacement model")
     render_backend: Literal["fast", "pyrender"] = param(doc="renderer")
     supersample: int = param(lo=1, hi=4, doc="render at this many times the resolution, then average down")
+    macro_cells: int = param(64, lo=8, hi=1024, doc="two-scale model: cells across the touched region in its "
+                                                   "macro (contact-scale) elastic solve")
     est_ms_per_frame_vga: float = param(50.0, lo=0.0, hi=1e6,
                                         doc="measured end-to-end ms per 640x480 frame on one core (for --dry-run estimates)")
 

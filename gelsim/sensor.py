@@ -47,6 +47,16 @@ class GelSpec:
     max_indentation_mm: float = param(lo=0.01, hi=20.0, doc="deepest indentation before the pad bottoms out, mm")
     membrane_smoothing_mm: float = param(0.05, lo=0.0, hi=5.0,
                                          doc="length over which the coated membrane smooths sharp relief, mm")
+    dome_radius_mm: float = param(0.0, lo=0.0, hi=1e5,
+                                  doc="radius of curvature of the gel's domed surface, mm (its edges lie "
+                                      "r^2 / 2R below the centre); 0 = flat")
+
+    def sag_mm(self, x_mm, y_mm):
+        """Height of the undeformed gel surface below its apex at sensor-frame points (mm, >= 0);
+        0 for a flat gel. The paraboloid r^2 / 2R (a sphere's cap to < 0.1% at r / R < 0.15)."""
+        if not self.dome_radius_mm:
+            return 0.0 * (x_mm + y_mm)
+        return (x_mm * x_mm + y_mm * y_mm) / (2.0 * self.dome_radius_mm)
 
 
 @dataclass(frozen=True)

@@ -42,7 +42,7 @@ from .contact import ContactFrames, Surface, simulate
 from .errors import GelsimError
 from .fabrics import Fabric, heightfield
 from .fidelity import Fidelity
-from .gel import press
+from .gel import FabricSupport, press
 from .markers import displace, marker_grid, rest_markers
 from .motion import Motion
 from .optics import Renderer
@@ -144,7 +144,8 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
                     out: SequenceOutput | None = None, shortcuts: bool = True,
                     outputs: Collection[str] = OUTPUTS, contact: ContactFrames | None = None,
                     surface: Surface | None = None, patch: FabricPatch | None = None,
-                    support_stiffness_kpa_per_mm: float | None = None) -> Iterator[np.ndarray | None]:
+                    support: FabricSupport | None = None,
+                    texture_mm: float | None = None) -> Iterator[np.ndarray | None]:
     """Yield the ``uint8 (H, W, 3)`` frames of one sequence; fills ``out`` with labels and timings.
 
     ``seed`` drives everything random in this sequence (fabric irregularity phase, camera
@@ -158,8 +159,8 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
     contact labels are always computed. ``contact``: a finished contact simulation of this
     motion to reuse (no physics run; e.g. to compare fidelity levels on the same contact).
     ``surface`` and ``patch``: the physics heightfield and the image-resolution patch of an
-    object other than a catalog fabric (then ``fabric`` may be None and the object is rigid
-    unless ``support_stiffness_kpa_per_mm`` is given).
+    object other than a catalog fabric (then ``fabric`` may be None; the object is rigid and
+    smooth unless ``support`` and ``texture_mm`` are given, see :func:`gelsim.gel.press`).
     """
     outputs = frozenset(outputs)
     if not outputs <= OUTPUTS:
@@ -185,9 +186,7 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
         contact = simulate(motion, surface, profile, fidelity)
         t = timer.add("physics", t)
     if fabric is not None:
-        support, support_len = fabric.support_stiffness_kpa_per_mm, fabric.support_length_mm
-    else:
-        support, support_len = support_stiffness_kpa_per_mm, None
+        support, texture_mm = fabric.support(), fabric.texture_mm
     # The image-resolution patch is the costliest fabric step: built only if some frame presses.
     touches = bool(np.any(contact.in_contact & (contact.normal_force_n > 0)))
     if patch is None and want_imprint and (touches or not shortcuts):
@@ -204,6 +203,7 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
     indentation = np.zeros(T, np.float32)
     area = np.zeros(T, np.float32)
     window = "touched" if shortcuts else "full"
+    prev = None  # the previous frame's imprint warm-starts the next (same result, fewer iterations)
     for i in range(T):
         force = float(contact.normal_force_n[i])
         imprint = None
@@ -212,8 +212,9 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
             prot = patch.sample(profile.shape, profile.image.mm_per_px, contact.position_mm[i, 0],
                                 contact.position_mm[i, 1], contact.yaw_deg[i], tuple(contact.tilt_deg[i]))
             t = timer.add("fabric", t)
-            imprint = press(prot, profile, fidelity, force_n=force if touching else 0.0,
-                            support_stiffness_kpa_per_mm=support, support_length_mm=support_len, window=window)
+            imprint = press(prot, profile, fidelity, force_n=force if touching else 0.0, support=support,
+                            texture_mm=texture_mm, window=window, warm=prev)
+            prev = imprint if touching else None
             indentation[i] = imprint.indentation_mm
             area[i] = imprint.contact_area_mm2
             t = timer.add("imprint", t)

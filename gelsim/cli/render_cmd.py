@@ -92,7 +92,7 @@ def render_one(*, fabric: int | None = None, indenter: str | None = None, diamet
     lap("setup")
     info: dict = {"profile": prof.name, "shape_hw": list(prof.shape), "backend": backend, "fidelity": fid.name,
                   "seed": seed}
-    support = support_len = None
+    support = texture = None
     if fabric is not None:
         from ..fabrics import heightfield, load_catalog
         fab = load_catalog()[fabric]
@@ -100,7 +100,7 @@ def render_one(*, fabric: int | None = None, indenter: str | None = None, diamet
         mm = prof.image.mm_per_px
         prot = heightfield(fab, x0_mm=-(w - 1) / 2 * mm, y0_mm=-(h - 1) / 2 * mm, width_px=w, height_px=h,
                            mm_per_px=mm, seed=seed)
-        support, support_len = fab.support_stiffness_kpa_per_mm, fab.support_length_mm
+        support, texture = fab.support(), fab.texture_mm
         info["object"] = {"fabric": fab.id, "name": fab.name, "family": fab.family}
     else:
         from ..indenters import load_indenter
@@ -109,8 +109,7 @@ def render_one(*, fabric: int | None = None, indenter: str | None = None, diamet
             else load_indenter(name, prof)
         info["object"] = {"indenter": name, "diameter_mm": diameter_mm if name in ("sphere", "cylinder") else None}
     lap("object")
-    imprint = press(prot, prof, fid, force_n=force_n, depth_mm=depth_mm, support_stiffness_kpa_per_mm=support,
-                    support_length_mm=support_len)
+    imprint = press(prot, prof, fid, force_n=force_n, depth_mm=depth_mm, support=support, texture_mm=texture)
     lap("imprint")
     markers = displace(prof, fid, imprint, seed=seed) if prof.markers.enabled else None
     lap("markers")

@@ -73,8 +73,10 @@ class Fabric:
     material: str = param(doc="fibre, e.g. 'cotton'")
     friction: float = param(lo=0.4, hi=1.0, doc="coefficient of friction on silicone rubber")
     thickness_mm: float = param(lo=0.05, hi=6.0, doc="uncompressed fabric thickness, mm")
-    compressive_modulus_kpa: float = param(lo=1.0, hi=5000.0,
-                                           doc="through-thickness compressive modulus of the fabric layer, kPa")
+    compressibility: float = param(lo=0.0, hi=0.9,
+                                   doc="Kawabata EMC: share of the thickness lost between 49 Pa and 4.9 kPa")
+    surface_modulus_mpa: float = param(lo=0.01, hi=1000.0,
+                                       doc="transverse modulus of the surface yarns, loops, pile or grain, MPa")
     relief_mm: float = param(lo=0.005, hi=2.0, doc="peak-to-base height of the surface texture, mm")
     # Irregularity and fuzz, for every family.
     hairiness: float = param(0.0, lo=0.0, hi=0.6, doc="share of the relief given to fibre fuzz, 0-0.6")
@@ -142,19 +144,26 @@ class Fabric:
                 raise GelsimError(f"{where}.satin_step: {self.satin_step} does not make a satin with harness "
                                   f"{self.satin_harness}; use a step coprime with it, between 2 and harness - 2")
 
-    @property
-    def support_stiffness_kpa_per_mm(self) -> float:
-        """Through-thickness stiffness of the fabric layer under the texture, kPa per mm of compression."""
-        return self.compressive_modulus_kpa / self.thickness_mm
+    def support(self):
+        """The fabric's compliance under a pressing gel (:class:`gelsim.gel.FabricSupport`): cloth
+        compression (thickness, Kawabata compressibility) and yarn-scale flattening."""
+        from ..gel.support import FabricSupport
+
+        return FabricSupport(self.thickness_mm, self.compressibility, self.surface_modulus_mpa)
 
     @property
-    def support_length_mm(self) -> float:
-        """Length over which the fabric layer shares load (Pasternak shear length), mm.
-
-        About the fabric's thickness: a yarn crown is held up by the cloth beneath it over
-        roughly that distance, so crowns keep their relief while the cloth compresses as a whole.
-        """
-        return self.thickness_mm
+    def texture_mm(self) -> float:
+        """The texture's scale, mm: the distance between neighbouring crowns along the coarser
+        direction (a weave's or knit's larger pitch, a basket's group, a felt's clump or a grain
+        cell), over which the imprint separates crowns from valleys."""
+        fam = self.family
+        if fam in ("velvet", "felt", "fleece", "leather", "suede"):
+            return float(self.feature_mm)
+        pitches = [p for p in (self.warp_pitch_mm, self.weft_pitch_mm) if p is not None]
+        scale = max(pitches)
+        if fam == "basket":
+            scale *= self.basket_group
+        return float(scale)
 
     def to_dict(self) -> dict:
         """Plain data, without the unused (None) geometry keys."""

@@ -1,0 +1,44 @@
+"""Small pieces shared by the imprint models (windows, resampling, the membrane's blur)."""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+# Below a third of a pixel a Gaussian changes nothing visible in the image.
+MIN_BLUR_PX = 0.33
+
+
+def bbox_slices(mask: np.ndarray, margin: int, shape) -> tuple[slice, slice] | None:
+    """Bounding box of ``mask`` grown by ``margin`` px and clipped to ``shape``; None if empty."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(mask.any(axis=0))
+    r0, r1 = max(0, rows[0] - margin), min(shape[0], rows[-1] + 1 + margin)
+    c0, c1 = max(0, cols[0] - margin), min(shape[1], cols[-1] + 1 + margin)
+    return slice(r0, r1), slice(c0, c1)
+
+
+def pen_window(v: np.ndarray, delta: float, margin_px: int, window: str) -> tuple[slice, slice] | None:
+    """Pixels the object reaches at approach ``delta`` (``v`` = P_max - P < delta), grown by
+    ``margin_px``; the whole grid for ``window="full"``."""
+    if window == "full":
+        return slice(0, v.shape[0]), slice(0, v.shape[1])
+    return bbox_slices(v < delta, margin_px, v.shape)
+
+
+def resize(img: np.ndarray, shape: tuple[int, int], interp=cv2.INTER_LINEAR) -> np.ndarray:
+    """``img`` at ``shape`` (H, W); the same array when it already has that shape."""
+    if img.shape == shape:
+        return img
+    return cv2.resize(img, (shape[1], shape[0]), interpolation=interp)
+
+
+def membrane_blur(depth: np.ndarray, sigma_px: float) -> np.ndarray:
+    """The coated membrane's smoothing: a Gaussian of ``sigma_px`` (none below a third of a pixel)."""
+    if sigma_px < MIN_BLUR_PX:
+        return depth
+    k = 2 * int(math.ceil(3.0 * sigma_px)) + 1  # +-3 sigma holds 99.7% of the weight
+    return cv2.GaussianBlur(depth, (k, k), sigma_px, borderType=cv2.BORDER_CONSTANT)
