@@ -55,7 +55,7 @@ def _list(args) -> int:
         print_json({"version": cat.version, "count": len(cat), "fabrics": [f.to_dict() for f in cat]})
         return 0
     cols = [("id", 3), ("name", 26), ("family", 11), ("material", 16), ("friction", 8), ("thick_mm", 8),
-            ("E_kpa", 6), ("relief_mm", 9), ("pitch_mm", 11)]
+            ("EMC", 5), ("Es_mpa", 6), ("relief_mm", 9), ("pitch_mm", 11)]
     print("  ".join(f"{c:<{w}}" for c, w in cols))
     for f in cat:
         pitch = "-"
@@ -64,7 +64,7 @@ def _list(args) -> int:
         elif f.feature_mm is not None:
             pitch = f"~{f.feature_mm:g}"
         vals = [f.id, f.name, f.family, f.material, f"{f.friction:g}", f"{f.thickness_mm:g}",
-                f"{f.compressive_modulus_kpa:g}", f"{f.relief_mm:g}", pitch]
+                f"{f.compressibility:g}", f"{f.surface_modulus_mpa:g}", f"{f.relief_mm:g}", pitch]
         print("  ".join(f"{str(v):<{w}}" for v, (_, w) in zip(vals, cols)))
     print(f"{len(cat)} fabrics, catalog version {cat.version}")
     return 0

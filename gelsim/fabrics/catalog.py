@@ -159,6 +159,8 @@ class Fabric:
         fam = self.family
         if fam in ("velvet", "felt", "fleece", "leather", "suede"):
             return float(self.feature_mm)
+        if fam == "corduroy":  # the pile tufts along a wale; the wales themselves are relief
+            return float(self.weft_pitch_mm)
         pitches = [p for p in (self.warp_pitch_mm, self.weft_pitch_mm) if p is not None]
         scale = max(pitches)
         if fam == "basket":

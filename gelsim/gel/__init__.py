@@ -176,12 +176,13 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
         if model == "elastic":
             depth_w, mask_w, delta, force, bottomed = press_elastic(
                 work, dx, gel, force_n=force_n, depth_mm=depth_mm, support=support, window=window,
-                guess_mm=max(delta, 1e-4))
+                guess_mm=max(delta, 1e-4), texture_mm=texture_mm)
             state = None
     elif model == "pyramid":
         ks = None
         if support is not None:  # the cloth's secant stiffness at a typical hand-press pressure
             ks = support.secant_stiffness_kpa_per_mm(_PYRAMID_SUPPORT_KPA) * 1e-3
+            ks = ks if math.isfinite(ks) else None  # an incompressible cloth is a rigid support
         depth_w, mask_w, delta, force, bottomed = press_pyramid(
             work, dx, gel, force_n, depth_mm, ks, window, None if support is None else support.shear_length_mm)
     else:

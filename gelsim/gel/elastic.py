@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 from .layer import Operator, effective_modulus_mpa, pk_solve
@@ -23,11 +24,18 @@ SUPPORT_PASSES = 2
 
 
 def _operator(shape, dx, gel, support: FabricSupport | None, p: np.ndarray | None, force_n: float | None,
-              area: float) -> Operator:
+              area: float, texture_px: int = 0) -> Operator:
+    """The layer with the cloth's secant compliance at the mean pressure over the *apparent* contact
+    (the touching crowns closed over the texture's scale: the cloth spreads a crown's load over
+    about its thickness, so it feels the patch's mean pressure, not the crowns')."""
     if support is None:
         return Operator(shape, dx, gel)
     if p is not None and np.any(p > 0):
-        pm_kpa = 1e3 * (force_n / (area * np.count_nonzero(p > 0)) if force_n is not None else float(p[p > 0].mean()))
+        touch = (p > 0).astype(np.uint8)
+        if texture_px >= 2:
+            touch = cv2.morphologyEx(touch, cv2.MORPH_CLOSE, np.ones((texture_px, texture_px), np.uint8))
+        load = force_n if force_n is not None else float(p.sum() * area)
+        pm_kpa = 1e3 * load / (area * max(int(np.count_nonzero(touch)), 1))
     else:
         pm_kpa = 1e3 * (force_n / (area * shape[0] * shape[1]) if force_n else 1.0)
     ks = support.secant_stiffness_kpa_per_mm(pm_kpa)
@@ -37,12 +45,12 @@ def _operator(shape, dx, gel, support: FabricSupport | None, p: np.ndarray | Non
 
 
 def press_elastic(work: np.ndarray, dx: float, gel, *, force_n: float | None, depth_mm: float | None,
-                  support: FabricSupport | None, window: str, guess_mm: float):
+                  support: FabricSupport | None, window: str, guess_mm: float, texture_mm: float | None = None):
     """Press ``work`` (protrusion, mm, (ny, nx) at ``dx`` mm/px). ``guess_mm``: a first estimate of
     the approach for force control (from a faster model), to size the window.
 
     Returns (depth mm float32 (ny, nx) before the membrane blur, contact mask, approach mm, force N,
-    bottomed, pressure MPa over the solved window and its slices).
+    bottomed). ``texture_mm``: the object's texture scale, for the apparent contact (see _operator).
     """
     pmax = float(work.max())
     v = (pmax - work).astype(np.float64)
@@ -51,6 +59,7 @@ def press_elastic(work: np.ndarray, dx: float, gel, *, force_n: float | None, de
     full = window == "full"
     vmax = gel.max_indentation_mm
     p = None
+    tpx = 0 if texture_mm is None else int(math.ceil(min(texture_mm, gel.thickness_mm) / dx))
     if force_n is not None:
         bound = min(max(2.0 * guess_mm, 1e-4), vmax)  # 0.1 um floor: a first guess only
         while True:
@@ -58,7 +67,7 @@ def press_elastic(work: np.ndarray, dx: float, gel, *, force_n: float | None, de
             hh = -v[sl]
             p = np.maximum(bound * 0.5 + hh, 0.0) + (hh >= -1e-12)
             for _ in range(SUPPORT_PASSES if support is not None else 1):
-                op = _operator(hh.shape, dx, gel, support, p, force_n, area)
+                op = _operator(hh.shape, dx, gel, support, p, force_n, area, tpx)
                 p, delta, _ = pk_solve(op, hh, area, force=force_n, p0=p)
             if delta <= bound or bound >= vmax:
                 break
@@ -75,7 +84,8 @@ def press_elastic(work: np.ndarray, dx: float, gel, *, force_n: float | None, de
         hh = -v[sl]
         p0 = np.maximum(delta + hh, 0.0) * (effective_modulus_mpa(gel) / gel.thickness_mm)
         for _ in range(SUPPORT_PASSES if support is not None else 1):
-            op = _operator(hh.shape, dx, gel, support, p if p is not None and p.shape == hh.shape else p0, None, area)
+            op = _operator(hh.shape, dx, gel, support, p if p is not None and p.shape == hh.shape else p0, None, area,
+                           tpx)
             p, _, _ = pk_solve(op, hh, area, delta=delta, p0=p0 if p is None or p.shape != hh.shape else p)
     force = float(p.sum() * area)
     # Displacement over the output window (contact window + margin): one more convolution.

@@ -218,6 +218,25 @@ def map_parameters(s: np.ndarray, anisotropy: np.ndarray) -> tuple[np.ndarray, n
     return zeta, lam
 
 
+def _blend(key: str, s: np.ndarray, anisotropy: np.ndarray) -> np.ndarray:
+    tabs = map_tables()
+    s = np.asarray(s, dtype=np.float32)
+    a = np.clip(np.asarray(anisotropy, dtype=np.float32), 0.0, 1.0)
+    v1 = np.interp(s, tabs["1d"].s, getattr(tabs["1d"], key)).astype(np.float32)
+    v2 = np.interp(s, tabs["2d"].s, getattr(tabs["2d"], key)).astype(np.float32)
+    return np.where(s >= 1.0, np.float32(1.0), v2 + a * (v1 - v2))
+
+
+def contact_fraction(s: np.ndarray, anisotropy: np.ndarray) -> np.ndarray:
+    """Share of a wave in contact at p / p* = s (tables; anisotropy 0 = 2-D wave, 1 = 1-D)."""
+    return _blend("contact_fraction", s, anisotropy)
+
+
+def kept_relief(s: np.ndarray, anisotropy: np.ndarray) -> np.ndarray:
+    """Kept fundamental of a wave at p / p* = s (tables; anisotropy 0 = 2-D wave, 1 = 1-D)."""
+    return _blend("kept", s, anisotropy)
+
+
 def fit_map_row(kind: str, s: float, n: int) -> dict[str, float]:
     """One row of the tables: solve the wave exactly at p / p* = s, then find the span slope
     that makes the map keep the same fundamental. Unit wave (h = 1, L = 1, E* = 1)."""

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .johnson import map_parameters
+from .johnson import contact_fraction, kept_relief, map_parameters
 from .layer import Operator, effective_modulus_mpa, pk_solve
 from .support import FabricSupport
 
@@ -47,9 +47,16 @@ OUT_MARGIN_THICKNESS = 3.0
 # The envelope's closing spans this many times the texture's scale: a jittered weave's
 # crowns stand up to ~20% of a pitch off their nominal place.
 ENVELOPE_SPAN = 1.2
-# The crown-to-valley depth is the deepest valley within this many times the texture's scale
-# (a full period of the coarsest direction, with room for a jittered yarn).
-STATS_SPAN = 1.5
+# A patch narrower than this many coarse cells is solved again on a grid fitted to it (a Hertz
+# contact's radius to about 3% from 24 cells across).
+MIN_CONTACT_CELLS = 24
+# That grid spans the region the object reaches within this many approaches of its top: a sphere's
+# contact radius is where it reaches one approach deep, so the grid spans twice the radius.
+REFINE_REACH = 4.0
+# Samples of a window's bearing curve (depth at a given contact fraction to about 0.5%).
+BEARING_SAMPLES = 40000
+# The texture statistics see features down to 1/16 of the texture's scale (see _texture_depth).
+STATS_BLUR_PER_TEXTURE = 16.0
 # Outer passes for the cloth's secant stiffness at the contact's mean pressure (the second
 # changes the approach by < 1%: measured on the catalog at 1-4 N).
 SUPPORT_PASSES = 2
@@ -102,25 +109,32 @@ def _upsample(coarse: np.ndarray, f: int, shape: tuple[int, int]) -> np.ndarray:
 
 
 def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: FabricSupport | None,
-                   texture_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   texture_mm: float, cloth_mpa_per_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The texture's part of the gel surface for the texture ``t`` (mm, <= 0: depth below the
     crowns) under the local mean pressure ``p_fine`` (MPa), both float32 (ny, nx).
+    ``cloth_mpa_per_mm``: the cloth's secant stiffness at the patch's mean pressure (inf: rigid).
 
     Returns (g - mean g: the gel surface's oscillation about its local mean, mm; -mean g: how far
     the crowns stand below that mean, mm, >= 0; the texture-scale contact, bool). The macro solve
     gives the gel's local *mean* displacement (its q = 0 part carries the load), so the texture
     enters as a zero-mean oscillation about it; the crowns are pushed in -mean g further.
-    Statistics are taken on a grid of about texture/4 cells (the fields they feed vary over a
-    texture period); the map itself runs at full resolution.
+
+    Two bands. The texture's own (``t`` blurred over texture / 16) sets p*, the contact and the
+    spans through Johnson's map. Finer relief (pores, fibre fuzz, sharp yarn edges) sits on the
+    crowns in contact, which carry p / (contact fraction): it prints by Johnson's kept fundamental
+    at its own p*, and not at all where the gel spans a valley. Statistics are taken on a grid of
+    about texture / 4 cells (the fields they feed vary over a texture period); the map itself runs
+    at full resolution.
     """
     e_star = effective_modulus_mpa(gel)
     fs = max(1, int(texture_mm / (4.0 * dx)))
     ny, nx = t.shape
     cs = (-(-nx // fs), -(-ny // fs))
-    # Central differences, each axis alone: a wave of q per axis reads sin(q dx) / dx there, which
-    # is inverted below (exact for a wave at any angle; the Sobel's cross smoothing is not).
-    gx = cv2.Sobel(t, cv2.CV_32F, 1, 0, ksize=1, scale=0.5 / dx)
-    gy = cv2.Sobel(t, cv2.CV_32F, 0, 1, ksize=1, scale=0.5 / dx)
+    # The texture's band: a blur of texture / 16 removes the finer relief and leaves q of a wave at
+    # the texture's scale as it was (slope and height scale alike; the height is restored below).
+    sigma = texture_mm / (STATS_BLUR_PER_TEXTURE * dx)
+    tq = cv2.GaussianBlur(t, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE) if sigma >= 0.5 else t
+    tf = cv2.subtract(t, tq) if sigma >= 0.5 else None
     k = max(1, int(round(texture_mm / (dx * fs))))
 
     def shrink(a):
@@ -135,39 +149,82 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
     def grow(small):
         return cv2.resize(small, (nx, ny), interpolation=cv2.INTER_LINEAR) if fs > 1 else small
 
-    m1 = smooth(shrink(t))
-    m2 = smooth(shrink(cv2.multiply(t, t)))
-    gxx = smooth(shrink(cv2.multiply(gx, gx)))
-    gyy = smooth(shrink(cv2.multiply(gy, gy)))
-    gxy = smooth(shrink(cv2.multiply(gx, gy)))
-    # Crown-to-valley depth: the deepest valley within STATS_SPAN texture scales (each coarse cell
-    # takes its block's minimum: sampling alone misses the valley floors).
-    tmin = cv2.resize(cv2.erode(t, np.ones((fs, fs), np.uint8), borderType=cv2.BORDER_REPLICATE), cs,
-                      interpolation=cv2.INTER_NEAREST) if fs > 1 else t
-    ke = max(1, int(round(STATS_SPAN * texture_mm / (dx * fs))))
-    depth = -cv2.blur(cv2.erode(tmin, np.ones((ke, ke), np.uint8), borderType=cv2.BORDER_REPLICATE), (ke, ke),
-                      borderType=cv2.BORDER_REPLICATE)
-    var = np.maximum(m2 - m1 * m1, np.float32(1e-12))
-    # Undo the central difference's sinc per axis: q_axis = asin(dx q_read) / dx.
-    cx = _sinc_correction(gxx / var, dx)
-    cy = _sinc_correction(gyy / var, dx)
-    gxx *= cx
-    gyy *= cy
-    gxy *= np.sqrt(cx * cy)
-    slope2 = gxx + gyy
-    q = np.sqrt(slope2 / var)                                    # 1/mm
-    aniso = np.sqrt((gxx - gyy) ** 2 + 4.0 * gxy * gxy) / np.maximum(slope2, np.float32(1e-12))
-    share = (support.texture_share(q, e_star) if support is not None else np.ones_like(q)).astype(np.float32)
+    def band_stats(b):
+        """(variance mm^2, wavenumber 1/mm, anisotropy 0-1) of a band, on the stats grid."""
+        # Central differences, each axis alone: a wave of q per axis reads sin(q dx) / dx there,
+        # which is inverted here (exact for a wave at any angle; the Sobel's cross smoothing is not).
+        gx = cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=1, scale=0.5 / dx)
+        gy = cv2.Sobel(b, cv2.CV_32F, 0, 1, ksize=1, scale=0.5 / dx)
+        m1 = smooth(shrink(b))
+        var = np.maximum(smooth(shrink(cv2.multiply(b, b))) - m1 * m1, np.float32(1e-14))
+        gxx = smooth(shrink(cv2.multiply(gx, gx)))
+        gyy = smooth(shrink(cv2.multiply(gy, gy)))
+        gxy = smooth(shrink(cv2.multiply(gx, gy)))
+        cx = _sinc_correction(gxx / var, dx)
+        cy = _sinc_correction(gyy / var, dx)
+        gxx *= cx
+        gyy *= cy
+        gxy *= np.sqrt(cx * cy)
+        slope2 = gxx + gyy
+        q = np.sqrt(slope2 / var)
+        aniso = np.minimum(np.sqrt((gxx - gyy) ** 2 + 4.0 * gxy * gxy) / np.maximum(slope2, np.float32(1e-14)), 1.0)
+        return var, q, aniso
+
+    def share_at(q):
+        """The gel's share of relief at wavenumber q: in series with the yarns' Winkler stiffness and
+        the cloth's Pasternak one, ks (1 + (q l)^2) (the reference's operator, at wavenumber q)."""
+        if support is None:
+            return np.ones_like(q)
+        comp = np.float32(1.0 / support.yarn_stiffness_mpa_per_mm)
+        if math.isfinite(cloth_mpa_per_mm):
+            ell = np.float32(support.shear_length_mm)
+            comp = comp + 1.0 / (np.float32(cloth_mpa_per_mm) * (1.0 + (q * ell) ** 2))
+        return (1.0 / (1.0 + np.float32(e_star / 2.0) * q * comp)).astype(np.float32)
+
+    var, q, aniso = band_stats(tq)
+    if sigma >= 0.5:
+        var = var * np.exp((q * np.float32(sigma * dx)) ** 2)
+    # Crown-to-valley depth from the RMS height: 2 sqrt(2) sigma for a 1-D wave, 4 sigma for the
+    # 2-D wave (exact for both, blended by the anisotropy). The deepest valley would count the
+    # narrow crevices between yarns, which the gel cannot enter and a finer grid resolves deeper.
+    depth = np.sqrt(var) * (np.float32(4.0) - np.float32(4.0 - 2.0 * math.sqrt(2.0)) * aniso)
+    share = share_at(q)
     d_eff = np.maximum(depth * share, np.float32(1e-9))
-    s = shrink(p_fine) / (np.float32(e_star / 4.0) * q * d_eff)
-    zeta, lam = map_parameters(s, aniso)
-    cut = (zeta * d_eff).astype(np.float32)
+    p_small = shrink(p_fine)
+    s = p_small / (np.float32(e_star / 4.0) * q * d_eff)
+    _, lam = map_parameters(s, aniso)
+    phi = contact_fraction(s, aniso)
+    # The cut: the depth whose bearing area is the theory's contact fraction. The contact area
+    # depends on p / (E* RMS slope), not on the heights' distribution (Johnson; Persson for random
+    # surfaces), while the depth at which a given area is reached does: a peaked knit loop has
+    # little area near its top, a flat-topped float much. The texture is stationary over a patch,
+    # so one bearing curve of depth over the local crown-to-valley depth serves every cell (on a
+    # wave it is exactly the tables' zeta).
+    te = cv2.multiply(tq, grow(share))
+    cut = (_bearing_depth(te, grow(d_eff), phi) * d_eff).astype(np.float32)
     # g = te where te >= -cut, else -cut + lam (te + cut) = te - (1 - lam) min(te + cut, 0), te = share t
-    te = cv2.multiply(t, grow(share))
     below = cv2.min(cv2.add(te, grow(cut)), 0.0)
     g = cv2.subtract(te, cv2.multiply(grow((1.0 - lam).astype(np.float32)), below))
+    touch = below >= 0.0
+    if tf is not None:
+        # The finer relief on the crowns in contact, at the crowns' pressure p / (contact fraction).
+        var_f, q_f, _ = band_stats(tf)
+        share_f = share_at(q_f)
+        crown_p = p_small / np.maximum(contact_fraction(s, aniso), np.float32(0.01))
+        s_f = crown_p / (np.float32(e_star / 4.0) * q_f * np.maximum(4.0 * np.sqrt(var_f) * share_f, 1e-9))
+        kept_f = (kept_relief(s_f, np.zeros_like(s_f)) * share_f).astype(np.float32)
+        g = cv2.add(g, cv2.multiply(cv2.multiply(tf, grow(kept_f)), touch.astype(np.float32)))
     gm = grow(smooth(shrink(g)))
-    return cv2.subtract(g, gm), cv2.multiply(gm, -1.0), below >= 0.0
+    return cv2.subtract(g, gm), cv2.multiply(gm, -1.0), touch
+
+
+def _bearing_depth(te: np.ndarray, d_eff: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Depth (over the crown-to-valley depth) above which ``phi`` of the area lies, from the
+    window's bearing curve of -te / d_eff (``BEARING_SAMPLES`` samples)."""
+    stride = max(1, int(math.sqrt(te.size / BEARING_SAMPLES)))
+    z = np.sort((-te[::stride, ::stride] / d_eff[::stride, ::stride]).ravel())
+    probs = (np.arange(z.size) + 0.5) / z.size
+    return np.interp(phi, probs, z).astype(np.float32)
 
 
 def _sinc_correction(qdx2: np.ndarray, dx: float) -> np.ndarray:
@@ -193,13 +250,124 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     # (the layer's finite thickness matters there, and a coarse grid resolves it).
     tex = None if texture_mm is None else min(float(texture_mm), gel.thickness_mm)
     has_texture = tex is not None and tex > 2.0 * dx
-    # 1. The region the gel can reach, and its coarse grid.
-    r0, r1, c0, c1 = (0, ny, 0, nx) if full else _bbox(work > np.float32(pmax - vmax))
+    # 1-2. Macro contact on a coarse grid over the region the gel can reach, warm-started from the
+    # previous frame when its grid matches; again over a region fitted to the contact when the
+    # first grid resolves the patch with fewer than MIN_CONTACT_CELLS cells across.
+    # (``window="full"`` solves on the same grid and only widens the output to the whole frame.)
+    reach = vmax
+    sol = None
+    for _ in range(2):
+        box = _bbox(work > np.float32(pmax - reach))
+        sol = _solve_macro(work, box, dx, gel, tex if has_texture else None, support, force_n, depth_mm,
+                           macro_cells, warm)
+        cb = _bbox(sol.p > 0)
+        if cb is None or max(cb[1] - cb[0], cb[3] - cb[2]) >= MIN_CONTACT_CELLS or sol.f == 1:
+            break
+        # The object reaches at most REFINE_REACH approaches deep inside the new region's edge.
+        new_reach = min(vmax, REFINE_REACH * max(sol.delta, 1e-6))
+        if new_reach >= 0.99 * reach:
+            break
+        reach = new_reach
+    r0, c0, f, cm, env_c, emax, p, delta, bottomed, key, cshape, area = (
+        sol.r0, sol.c0, sol.f, sol.cm, sol.env_c, sol.emax, sol.p, sol.delta, sol.bottomed, sol.key, sol.cshape,
+        sol.area)
+    r1, c1 = sol.r1, sol.c1
+    force = float(p.sum() * area)
+    state = MacroState(key, p)
+    depth = np.zeros((ny, nx), np.float32)
+    mask = np.zeros((ny, nx), bool)
+    cb = _bbox(p > 0)
+    if cb is None:
+        return depth, mask, delta, force, bottomed, state
+    # 3. The gel's displacement around the patch: one more convolution over a padded window.
+    # (Clipped to the frame: the gel beyond it is not imaged.)
+    mc = max(ny, nx) if full else int(math.ceil(OUT_MARGIN_THICKNESS * gel.thickness_mm / cm))
+    q0, q1, s0, s1 = cb
+    lo_q, hi_q = max(q0 - mc, -(r0 // f)), min(q1 + mc, -(-(ny - r0) // f))
+    lo_s, hi_s = max(s0 - mc, -(c0 // f)), min(s1 + mc, -(-(nx - c0) // f))
+    big = np.zeros((hi_q - lo_q, hi_s - lo_s))
+    big[q0 - lo_q:q1 - lo_q, s0 - lo_s:s1 - lo_s] = p[q0:q1, s0:s1]
+    u_f = _upsample(np.maximum(Operator(big.shape, cm, gel).gel(big), 0.0), f, (big.shape[0] * f, big.shape[1] * f))
+    fr0, fc0 = r0 + lo_q * f, c0 + lo_s * f
+    a0, a1 = max(0, fr0), min(ny, fr0 + u_f.shape[0])
+    b0, b1 = max(0, fc0), min(nx, fc0 + u_f.shape[1])
+    depth[a0:a1, b0:b1] = u_f[a0 - fr0:a1 - fr0, b0 - fc0:b1 - fc0]
+    # 4. The contact window (coarse contact, one block of margin), at full resolution.
+    w0, w1 = r0 + max(0, cb[0] - 1) * f, min(r1, r0 + (cb[1] + 1) * f)
+    v0, v1 = c0 + max(0, cb[2] - 1) * f, min(c1, c0 + (cb[3] + 1) * f)
+    if has_texture:
+        ke = int(math.ceil(ENVELOPE_SPAN * tex / dx)) | 1
+        W0, W1, V0, V1 = max(0, w0 - ke), min(ny, w1 + ke), max(0, v0 - ke), min(nx, v1 + ke)
+        env = _closing(np.ascontiguousarray(work[W0:W1, V0:V1]), ke)[w0 - W0:w1 - W0, v0 - V0:v1 - V0]
+    else:
+        env = work[w0:w1, v0:v1]
+    dwin = depth[w0:w1, v0:v1]
+    # In contact the gel rests on the envelope: the depth is the penetration (the fine detail the
+    # coarse grid averaged away). The patch's edge lies between the last coarse cell in contact and
+    # the first out of it: the contact indicator, interpolated and cut at one half, puts it at the
+    # midpoint, unbiased (the interpolated pressure's footprint overstates it by half a cell, the
+    # interpolated gap understates it by as much).
+    pen_env = cv2.subtract(env, float(emax - delta))
+    win = (w0, w1, v0, v1)
+    if support is not None:
+        # On a compliant cloth the gel takes the penetration less the cloth's own compression
+        # (the macro solve's closure minus the gel's displacement, in its contact cells).
+        op = _macro_operator(cshape, cm, gel, None, p, force_n, area)
+        comp = np.maximum(np.where(p > 0, (hc_of(sol) + delta) - op.gel(p), 0.0), 0.0).astype(np.float32)
+        # Carried one cell past the contact cells: the fine patch reaches half a cell beyond them.
+        comp = cv2.dilate(comp, np.ones((3, 3), np.uint8))
+        pen_env = cv2.subtract(pen_env, _window_pressure(comp, f, (r0, c0), win))
+    in_macro = _window_pressure((p > 0).astype(np.float32), f, (r0, c0), win) >= 0.5
+    # The gel cannot pass through the object: inside the patch it lies at least as deep as the
+    # penetration the gel takes (outside, the elastic displacement alone).
+    np.maximum(dwin, np.where(in_macro, pen_env, np.float32(0.0)), out=dwin)
+    p_win = cv2.max(_window_pressure(p.astype(np.float32), f, (r0, c0), win), 0.0)
+    if has_texture:
+        t = cv2.subtract(np.ascontiguousarray(work[w0:w1, v0:v1]), env)
+        cloth = math.inf
+        if support is not None:  # the cloth's secant stiffness at the patch's mean pressure, MPa/mm
+            n = max(int(np.count_nonzero(p > 0)), 1)
+            cloth = 1e-3 * support.secant_stiffness_kpa_per_mm(1e3 * force / (area * n))
+        g, sink, touch = _texture_depth(t, p_win, dx, gel, support, tex, cloth)
+        g[~in_macro] = 0.0
+        dwin += g
+        np.maximum(dwin, 0.0, out=dwin)
+        mask[w0:w1, v0:v1] = in_macro & touch
+        # The approach is the crowns': the macro one plus their sink below the mean surface there.
+        top = np.unravel_index(int(np.argmax(np.where(in_macro, env, -np.inf))), t.shape)
+        delta = float(delta) + float(sink[top])
+    else:
+        mask[w0:w1, v0:v1] = in_macro
+    return depth, mask, float(delta), force, bottomed, state
+
+
+@dataclass(frozen=True)
+class _Macro:
+    r0: int
+    r1: int
+    c0: int
+    c1: int
+    f: int
+    cm: float
+    env_c: np.ndarray
+    emax: float
+    p: np.ndarray
+    delta: float
+    bottomed: bool
+    key: tuple
+    cshape: tuple
+    area: float
+
+
+def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cells, warm) -> _Macro:
+    """The coarse contact problem over ``box`` = (r0, r1, c0, c1) of ``work`` (see press_twoscale)."""
+    r0, r1, c0, c1 = box
+    vmax = gel.max_indentation_mm
     region = work[r0:r1, c0:c1]
     f = max(1, int(math.ceil(max(r1 - r0, c1 - c0) / macro_cells)))
     cm = dx * f
     cshape = (-(-(r1 - r0) // f), -(-(c1 - c0) // f))
-    if has_texture:
+    if tex is not None:
         # Crown envelope on the coarse grid: each cell's highest point (block centres of a
         # dilation), then a closing over the texture's scale fills the valleys between crowns.
         pooled = cv2.resize(cv2.dilate(region, np.ones((f, f), np.uint8)), (cshape[1], cshape[0]),
@@ -210,7 +378,6 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     emax = float(env_c.max())
     hc = env_c - emax
     area = cm * cm
-    # 2. Macro contact, warm-started from the previous frame when its grid matches.
     key = (cshape, f)
     warm_ok = warm is not None and warm.key == key
     p = warm.pressure_mpa if warm_ok else np.sqrt(np.maximum(hc + max(0.05 * vmax, 1e-4), 0.0))
@@ -227,57 +394,17 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
             delta = vmax if bottomed else float(depth_mm)
             p, _, _ = pk_solve(op, hc, area, delta=delta, p0=np.maximum(p, 0) + (hc + delta > 0),
                                tol=MACRO_TOL, maxit=MACRO_MAXIT)
-    force = float(p.sum() * area)
-    state = MacroState(key, p)
-    depth = np.zeros((ny, nx), np.float32)
-    mask = np.zeros((ny, nx), bool)
-    cb = _bbox(p > 0)
-    if cb is None:
-        return depth, mask, delta, force, bottomed, state
-    # 3. The gel's displacement around the patch: one more convolution over a padded window.
-    mc = 0 if full else int(math.ceil(OUT_MARGIN_THICKNESS * gel.thickness_mm / cm))
-    q0, q1, s0, s1 = (0, cshape[0], 0, cshape[1]) if full else cb
-    big = np.zeros((q1 - q0 + 2 * mc, s1 - s0 + 2 * mc))
-    big[mc:mc + q1 - q0, mc:mc + s1 - s0] = p[q0:q1, s0:s1]
-    u_f = _upsample(np.maximum(Operator(big.shape, cm, gel).gel(big), 0.0), f, (big.shape[0] * f, big.shape[1] * f))
-    fr0, fc0 = r0 + (q0 - mc) * f, c0 + (s0 - mc) * f
-    a0, a1 = max(0, fr0), min(ny, fr0 + u_f.shape[0])
-    b0, b1 = max(0, fc0), min(nx, fc0 + u_f.shape[1])
-    depth[a0:a1, b0:b1] = u_f[a0 - fr0:a1 - fr0, b0 - fc0:b1 - fc0]
-    # 4. The contact window (coarse contact, one block of margin), at full resolution.
-    w0, w1 = r0 + max(0, cb[0] - 1) * f, min(r1, r0 + (cb[1] + 1) * f)
-    v0, v1 = c0 + max(0, cb[2] - 1) * f, min(c1, c0 + (cb[3] + 1) * f)
-    if has_texture:
-        ke = int(math.ceil(ENVELOPE_SPAN * tex / dx)) | 1
-        W0, W1, V0, V1 = max(0, w0 - ke), min(ny, w1 + ke), max(0, v0 - ke), min(nx, v1 + ke)
-        env = _closing(np.ascontiguousarray(work[W0:W1, V0:V1]), ke)[w0 - W0:w1 - W0, v0 - V0:v1 - V0]
-    else:
-        env = work[w0:w1, v0:v1]
-    dwin = depth[w0:w1, v0:v1]
-    # In the patch the gel rests on the envelope (the fine detail the coarse grid averaged away).
-    pen_env = cv2.subtract(env, float(emax - delta))
-    in_macro = pen_env >= dwin - np.float32(1e-9)
-    np.maximum(dwin, pen_env, out=dwin)
-    p_win = cv2.max(_window_pressure(p.astype(np.float32), f, (r0, c0), (w0, w1, v0, v1)), 0.0)
-    in_macro |= p_win > 0
-    if has_texture:
-        t = cv2.subtract(np.ascontiguousarray(work[w0:w1, v0:v1]), env)
-        g, sink, touch = _texture_depth(t, p_win, dx, gel, support, tex)
-        g[~in_macro] = 0.0
-        dwin += g
-        np.maximum(dwin, 0.0, out=dwin)
-        mask[w0:w1, v0:v1] = in_macro & touch & (p_win > 0)
-        # The approach is the crowns': the macro one plus their sink below the mean surface there.
-        top = np.unravel_index(int(np.argmax(np.where(in_macro, env, -np.inf))), t.shape)
-        delta = float(delta) + float(sink[top])
-    else:
-        mask[w0:w1, v0:v1] = in_macro & (p_win > 0)
-    return depth, mask, float(delta), force, bottomed, state
+    return _Macro(r0, r1, c0, c1, f, cm, env_c, emax, p, float(delta), bool(bottomed), key, cshape, area)
+
+
+def hc_of(sol: "_Macro") -> np.ndarray:
+    """The macro grid's object surface relative to its top (mm, <= 0)."""
+    return sol.env_c - sol.emax
 
 
 def _window_pressure(p: np.ndarray, f: int, origin, win) -> np.ndarray:
-    """The coarse pressure (MPa) bilinearly at the fine pixels of ``win`` = (w0, w1, v0, v1), given
-    the coarse grid's origin (fine pixel of its first block) and block size ``f``."""
+    """A coarse field (e.g. the pressure, MPa) bilinearly at the fine pixels of ``win`` = (w0, w1,
+    v0, v1), given the coarse grid's origin (fine pixel of its first block) and block size ``f``."""
     r0, c0 = origin
     w0, w1, v0, v1 = win
     # Coarse cells covering the window, one extra on each side for the interpolation.

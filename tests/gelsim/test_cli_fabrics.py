@@ -27,7 +27,7 @@ def test_list_json(capsys):
     assert doc["count"] == 100 and len(doc["fabrics"]) == 100
     assert len(doc["version"]) == 12
     first = doc["fabrics"][0]
-    for k in ("id", "name", "family", "material", "friction", "thickness_mm", "compressive_modulus_kpa",
+    for k in ("id", "name", "family", "material", "friction", "thickness_mm", "compressibility", "surface_modulus_mpa",
               "relief_mm", "warp_pitch_mm"):
         assert k in first
     assert [f["id"] for f in doc["fabrics"]] == list(range(1, 101))

@@ -254,7 +254,7 @@ def test_long_sequence(small):
     dict(relief_mm=0.005), dict(relief_mm=2.0, thickness_mm=6.0),
     dict(warp_pitch_mm=0.021, weft_pitch_mm=0.021, warp_width_mm=0.02, weft_width_mm=0.02),  # sub-pixel weave
     dict(warp_pitch_mm=20.0, weft_pitch_mm=20.0, warp_width_mm=20.0, weft_width_mm=20.0),
-    dict(compressive_modulus_kpa=1.0), dict(compressive_modulus_kpa=5000.0),
+    dict(compressibility=0.0, surface_modulus_mpa=0.01), dict(compressibility=0.9, surface_modulus_mpa=1000.0),
 ])
 def test_fabric_extremes(changes):
     fabric = dataclasses.replace(load_catalog()[1], **changes)

@@ -50,7 +50,9 @@ def test_catalog_physical_ranges():
         assert 0.4 <= f.friction <= 1.0
         assert 0.05 <= f.thickness_mm <= 6.0
         assert f.relief_mm <= f.thickness_mm
-        assert 1.0 <= f.compressive_modulus_kpa <= 5000.0
+        assert 0.0 <= f.compressibility <= 0.9
+        assert 0.01 <= f.surface_modulus_mpa <= 1000.0
+        assert 0.02 < f.texture_mm <= 20.0
 
 
 def test_unknown_id_message():
@@ -82,7 +84,8 @@ family = "plain"
 material = "cotton"
 friction = 0.6
 thickness_mm = 0.2
-compressive_modulus_kpa = 40
+compressibility = 0.3
+surface_modulus_mpa = 2.0
 relief_mm = 0.04
 warp_pitch_mm = 0.2
 weft_pitch_mm = 0.2
