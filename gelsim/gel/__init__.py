@@ -55,7 +55,8 @@ class Imprint:
     normal_force_n: normal force carried by the gel, N (below the request if bottomed out).
     contact_area_mm2: area in contact, mm^2.
     bottomed_out: the approach reached ``gel.max_indentation_mm`` and was clipped there.
-    state: the two-scale model's macro solution, to warm-start the next frame (``press(warm=)``).
+    state: the model's solution (two-scale: its macro solve, which warm-starts the next frame,
+        ``press(warm=)``; elastic: its pressure), or None.
     """
     depth_mm: np.ndarray
     contact_mask: np.ndarray
@@ -64,6 +65,13 @@ class Imprint:
     contact_area_mm2: float
     bottomed_out: bool
     state: Any = None
+
+    def pressure_mpa(self) -> np.ndarray | None:
+        """The contact pressure at the image's resolution (MPa, float32, shaped like depth_mm): the
+        elastic model's at every pixel, the two-scale model's local mean (its macro solve's); None
+        for the pyramid model."""
+        field = getattr(self.state, "pressure_field", None)
+        return None if field is None else resize(field(), self.depth_mm.shape)
 
 
 def hertz(diameter_mm: float, force_n: float, gel) -> tuple[float, float]:
@@ -174,10 +182,9 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
                             warm=warm.state if (warm is not None and isinstance(warm.state, MacroState)) else None)
         depth_w, mask_w, delta, force, bottomed, state = ts
         if model == "elastic":
-            depth_w, mask_w, delta, force, bottomed = press_elastic(
+            depth_w, mask_w, delta, force, bottomed, state = press_elastic(
                 work, dx, gel, force_n=force_n, depth_mm=depth_mm, support=support, window=window,
                 guess_mm=max(delta, 1e-4), texture_mm=texture_mm)
-            state = None
     elif model == "pyramid":
         ks = None
         if support is not None:  # the cloth's secant stiffness at a typical hand-press pressure

@@ -8,6 +8,7 @@ texture, and the yardstick of the faster models; seconds per frame on a fabric.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -19,6 +20,20 @@ from .util import membrane_blur, pen_window
 # The layer's displacement falls below 2% of its peak within 3 thicknesses of the contact
 # (bonded base); the half-space's 1/r tail is cut at the frame's edge.
 OUT_MARGIN_THICKNESS = 3.0
+
+
+@dataclass(frozen=True)
+class ElasticState:
+    """The reference's pressure (MPa) over its solved window of the work grid."""
+    pressure_mpa: np.ndarray
+    window: tuple[slice, slice]
+    work_shape: tuple[int, int]
+
+    def pressure_field(self) -> np.ndarray:
+        """The pressure on the whole work grid, MPa (float32, 0 outside the contact)."""
+        out = np.zeros(self.work_shape, np.float32)
+        out[self.window] = self.pressure_mpa
+        return out
 # Outer passes for the cloth's secant stiffness at the contact's mean pressure.
 SUPPORT_PASSES = 2
 
@@ -50,7 +65,7 @@ def press_elastic(work: np.ndarray, dx: float, gel, *, force_n: float | None, de
     the approach for force control (from a faster model), to size the window.
 
     Returns (depth mm float32 (ny, nx) before the membrane blur, contact mask, approach mm, force N,
-    bottomed). ``texture_mm``: the object's texture scale, for the apparent contact (see _operator).
+    bottomed, ElasticState). ``texture_mm``: the object's texture scale, for the apparent contact (see _operator).
     """
     pmax = float(work.max())
     v = (pmax - work).astype(np.float64)
@@ -80,7 +95,7 @@ def press_elastic(work: np.ndarray, dx: float, gel, *, force_n: float | None, de
             delta, bottomed = vmax, True
         sl = pen_window(v, delta, 2, "full" if full else "touched")
         if sl is None:
-            return np.zeros(work.shape, np.float32), np.zeros(work.shape, bool), 0.0, 0.0, False
+            return np.zeros(work.shape, np.float32), np.zeros(work.shape, bool), 0.0, 0.0, False, None
         hh = -v[sl]
         p0 = np.maximum(delta + hh, 0.0) * (effective_modulus_mpa(gel) / gel.thickness_mm)
         for _ in range(SUPPORT_PASSES if support is not None else 1):
@@ -105,4 +120,4 @@ def press_elastic(work: np.ndarray, dx: float, gel, *, force_n: float | None, de
     mask = np.zeros(work.shape, bool)
     depth[R0:R1, C0:C1] = np.maximum(u, 0.0).astype(np.float32)
     mask[sl] = p > 0
-    return depth, mask, delta, force, bottomed
+    return depth, mask, delta, force, bottomed, ElasticState(p.astype(np.float32), sl, work.shape)

@@ -64,9 +64,21 @@ SUPPORT_PASSES = 2
 
 @dataclass(frozen=True)
 class MacroState:
-    """A frame's macro solution, to warm-start the next frame's (opaque to callers)."""
+    """A frame's macro solution: warm-starts the next frame's, and gives the mean pressure field.
+
+    pressure_mpa: the coarse grid's pressure, MPa; its block (i, j) covers work pixels
+    ``origin + (i, j) * block`` to ``+ block``; ``work_shape`` the work grid's (ny, nx)."""
     key: tuple
     pressure_mpa: np.ndarray
+    origin: tuple[int, int] = (0, 0)
+    block: int = 1
+    work_shape: tuple[int, int] = (0, 0)
+
+    def pressure_field(self) -> np.ndarray:
+        """The local mean pressure on the work grid (MPa, float32; bilinear between block centres)."""
+        ny, nx = self.work_shape
+        return cv2.max(_window_pressure(self.pressure_mpa.astype(np.float32), self.block, self.origin,
+                                        (0, ny, 0, nx)), 0.0)
 
 
 def _closing(img: np.ndarray, k: int) -> np.ndarray:
@@ -133,8 +145,8 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
     # The texture's band: a blur of texture / 16 removes the finer relief and leaves q of a wave at
     # the texture's scale as it was (slope and height scale alike; the height is restored below).
     sigma = texture_mm / (STATS_BLUR_PER_TEXTURE * dx)
-    tq = cv2.GaussianBlur(t, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE) if sigma >= 0.5 else t
-    tf = cv2.subtract(t, tq) if sigma >= 0.5 else None
+    blurred = sigma >= 0.5
+    tq = cv2.GaussianBlur(t, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE) if blurred else t
     k = max(1, int(round(texture_mm / (dx * fs))))
 
     def shrink(a):
@@ -150,7 +162,7 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
         return cv2.resize(small, (nx, ny), interpolation=cv2.INTER_LINEAR) if fs > 1 else small
 
     def band_stats(b):
-        """(variance mm^2, wavenumber 1/mm, anisotropy 0-1) of a band, on the stats grid."""
+        """(variance mm^2, wavenumber 1/mm, anisotropy 0-1, mean mm) of a band, on the stats grid."""
         # Central differences, each axis alone: a wave of q per axis reads sin(q dx) / dx there,
         # which is inverted here (exact for a wave at any angle; the Sobel's cross smoothing is not).
         gx = cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=1, scale=0.5 / dx)
@@ -168,7 +180,7 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
         slope2 = gxx + gyy
         q = np.sqrt(slope2 / var)
         aniso = np.minimum(np.sqrt((gxx - gyy) ** 2 + 4.0 * gxy * gxy) / np.maximum(slope2, np.float32(1e-14)), 1.0)
-        return var, q, aniso
+        return var, q, aniso, m1
 
     def share_at(q):
         """The gel's share of relief at wavenumber q: in series with the yarns' Winkler stiffness and
@@ -181,9 +193,17 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
             comp = comp + 1.0 / (np.float32(cloth_mpa_per_mm) * (1.0 + (q * ell) ** 2))
         return (1.0 / (1.0 + np.float32(e_star / 2.0) * q * comp)).astype(np.float32)
 
-    var, q, aniso = band_stats(tq)
-    if sigma >= 0.5:
-        var = var * np.exp((q * np.float32(sigma * dx)) ** 2)
+    var, q, aniso, m_tq = band_stats(tq)
+    tf = None
+    if blurred:
+        # The blur lowered the texture's own band by gain = exp(-(q s)^2 / 2) (s its width, mm):
+        # restore its height, and take as finer relief what the restored band leaves of t.
+        # (Only the oscillation about the local mean is scaled back: the mean is not blurred.)
+        gain = np.exp(-0.5 * (q * np.float32(sigma * dx)) ** 2).astype(np.float32)
+        var = var / (gain * gain)
+        mean = grow(m_tq)
+        tq = cv2.add(mean, cv2.divide(cv2.subtract(tq, mean), grow(gain)))
+        tf = cv2.subtract(t, tq)
     # Crown-to-valley depth from the RMS height: 2 sqrt(2) sigma for a 1-D wave, 4 sigma for the
     # 2-D wave (exact for both, blended by the anisotropy). The deepest valley would count the
     # narrow crevices between yarns, which the gel cannot enter and a finer grid resolves deeper.
@@ -208,7 +228,7 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
     touch = below >= 0.0
     if tf is not None:
         # The finer relief on the crowns in contact, at the crowns' pressure p / (contact fraction).
-        var_f, q_f, _ = band_stats(tf)
+        var_f, q_f, _, _ = band_stats(tf)
         share_f = share_at(q_f)
         crown_p = p_small / np.maximum(contact_fraction(s, aniso), np.float32(0.01))
         s_f = crown_p / (np.float32(e_star / 4.0) * q_f * np.maximum(4.0 * np.sqrt(var_f) * share_f, 1e-9))
@@ -273,7 +293,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         sol.area)
     r1, c1 = sol.r1, sol.c1
     force = float(p.sum() * area)
-    state = MacroState(key, p)
+    state = MacroState(key, p, (r0, c0), f, (ny, nx))
     depth = np.zeros((ny, nx), np.float32)
     mask = np.zeros((ny, nx), bool)
     cb = _bbox(p > 0)
@@ -407,10 +427,15 @@ def _window_pressure(p: np.ndarray, f: int, origin, win) -> np.ndarray:
     v0, v1), given the coarse grid's origin (fine pixel of its first block) and block size ``f``."""
     r0, c0 = origin
     w0, w1, v0, v1 = win
-    # Coarse cells covering the window, one extra on each side for the interpolation.
-    i0, i1 = max(0, (w0 - r0) // f - 1), min(p.shape[0], -(-(w1 - r0) // f) + 1)
-    j0, j1 = max(0, (v0 - c0) // f - 1), min(p.shape[1], -(-(v1 - c0) // f) + 1)
-    up = _upsample(p[i0:i1, j0:j1], f, ((i1 - i0) * f, (j1 - j0) * f))
+    # Coarse cells covering the window, one extra on each side for the interpolation (zero beyond
+    # the grid).
+    i0, i1 = (w0 - r0) // f - 1, -(-(w1 - r0) // f) + 1
+    j0, j1 = (v0 - c0) // f - 1, -(-(v1 - c0) // f) + 1
+    sub = np.zeros((i1 - i0, j1 - j0), np.float32)
+    a0, a1, b0, b1 = max(i0, 0), min(i1, p.shape[0]), max(j0, 0), min(j1, p.shape[1])
+    if a1 > a0 and b1 > b0:
+        sub[a0 - i0:a1 - i0, b0 - j0:b1 - j0] = p[a0:a1, b0:b1]
+    up = _upsample(sub, f, ((i1 - i0) * f, (j1 - j0) * f))
     oy, ox = w0 - (r0 + i0 * f), v0 - (c0 + j0 * f)
     return np.ascontiguousarray(up[oy:oy + w1 - w0, ox:ox + v1 - v0])
 
