@@ -57,6 +57,13 @@ REFINE_REACH = 4.0
 BEARING_SAMPLES = 40000
 # The texture statistics see features down to 1/16 of the texture's scale (see _texture_depth).
 STATS_BLUR_PER_TEXTURE = 16.0
+# A texture needs this many pixels per period for its slopes to be read (central differences
+# alias beyond q dx = pi / 2).
+MIN_TEXTURE_PX = 4.0
+# p / p* beyond complete contact changes nothing (the tables end at 1); a cap keeps it finite.
+S_MAX = 1e3
+# Relief coarser than this many gel thicknesses is the macro solve's, not the texture's.
+TEXTURE_CAP_THICKNESS = 1.0
 # Outer passes for the cloth's secant stiffness at the contact's mean pressure (the second
 # changes the approach by < 1%: measured on the catalog at 1-4 N).
 SUPPORT_PASSES = 2
@@ -178,7 +185,8 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
         gyy *= cy
         gxy *= np.sqrt(cx * cy)
         slope2 = gxx + gyy
-        q = np.sqrt(slope2 / var)
+        # Between one period of the window and the grid's Nyquist wavenumber.
+        q = np.clip(np.sqrt(slope2 / var), np.float32(2.0 * math.pi / (k * fs * dx)), np.float32(math.pi / dx))
         aniso = np.minimum(np.sqrt((gxx - gyy) ** 2 + 4.0 * gxy * gxy) / np.maximum(slope2, np.float32(1e-14)), 1.0)
         return var, q, aniso, m1
 
@@ -211,7 +219,7 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
     share = share_at(q)
     d_eff = np.maximum(depth * share, np.float32(1e-9))
     p_small = shrink(p_fine)
-    s = p_small / (np.float32(e_star / 4.0) * q * d_eff)
+    s = np.minimum(p_small / (np.float32(e_star / 4.0) * q * d_eff), np.float32(S_MAX))
     _, lam = map_parameters(s, aniso)
     phi = contact_fraction(s, aniso)
     # The cut: the depth whose bearing area is the theory's contact fraction. The contact area
@@ -231,7 +239,8 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
         var_f, q_f, _, _ = band_stats(tf)
         share_f = share_at(q_f)
         crown_p = p_small / np.maximum(contact_fraction(s, aniso), np.float32(0.01))
-        s_f = crown_p / (np.float32(e_star / 4.0) * q_f * np.maximum(4.0 * np.sqrt(var_f) * share_f, 1e-9))
+        s_f = np.minimum(crown_p / (np.float32(e_star / 4.0) * q_f * np.maximum(4.0 * np.sqrt(var_f) * share_f, 1e-9)),
+                         np.float32(S_MAX))
         kept_f = (kept_relief(s_f, np.zeros_like(s_f)) * share_f).astype(np.float32)
         g = cv2.add(g, cv2.multiply(cv2.multiply(tf, grow(kept_f)), touch.astype(np.float32)))
     gm = grow(smooth(shrink(g)))
@@ -266,10 +275,12 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     pmax = float(work.max())
     vmax = gel.max_indentation_mm
     full = window == "full"
-    # The texture's scale, capped at the gel's thickness: coarser relief is the macro solve's
-    # (the layer's finite thickness matters there, and a coarse grid resolves it).
-    tex = None if texture_mm is None else min(float(texture_mm), gel.thickness_mm)
-    has_texture = tex is not None and tex > 2.0 * dx
+    # The texture's scale, capped below the gel's thickness: coarser relief is the macro solve's
+    # (the layer's finite thickness matters there, and the coarse grid resolves it).
+    tex = None if texture_mm is None else min(float(texture_mm), TEXTURE_CAP_THICKNESS * gel.thickness_mm)
+    # Below MIN_TEXTURE_PX pixels per period the texture is not resolved on this grid (its slopes
+    # cannot be read): the macro solve takes the area-averaged surface and there is no texture stage.
+    has_texture = tex is not None and tex >= MIN_TEXTURE_PX * dx
     # 1-2. Macro contact on a coarse grid over the region the gel can reach, warm-started from the
     # previous frame when its grid matches; again over a region fitted to the contact when the
     # first grid resolves the patch with fewer than MIN_CONTACT_CELLS cells across.

@@ -42,9 +42,9 @@ def test_json_keys_and_hertz_values(capsys, thick_profile):
     assert rep["bottomed_out"] is False
 
 
-def test_pyramid_and_cylinder(capsys):
+def test_twoscale_and_cylinder(capsys):
     rep = run_json(capsys, "--force-n", "0.05", "--fidelity", "balanced", "--resolution-px", "320")
-    assert rep["model"] == "pyramid" and rep["indentation_mm"] > 0 and rep["contact_radius_mm"] > 0
+    assert rep["model"] == "twoscale" and rep["indentation_mm"] > 0 and rep["contact_radius_mm"] > 0
     cyl = run_json(capsys, "--indenter", "cylinder", "--diameter-mm", "3", "--length-mm", "5",
                    "--force-n", "0.05", "--fidelity", "fast", "--resolution-px", "320")
     assert cyl["hertz_contact_radius_mm"] is None and cyl["indentation_mm"] > 0
