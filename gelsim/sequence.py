@@ -139,6 +139,21 @@ def _negligible_px(shear_mm, twist_deg: float, profile: SensorProfile) -> tuple[
     return shear_px < NEGLIGIBLE_PX, twist_px < NEGLIGIBLE_PX
 
 
+def contact_location(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where a bool (H, W) contact mask lies, in px (x = column, y = row, pixel centres at integers).
+
+    Returns the centroid float (2,) (x, y) and the bounding box float (4,) (x0, y0, x1, y1) of its
+    pixels' edges, so a single pixel at column 5 spans x 4.5-5.5; both NaN when the mask is empty.
+    """
+    m = np.ascontiguousarray(mask).view(np.uint8)
+    mom = cv2.moments(m, binaryImage=True)
+    if mom["m00"] == 0:
+        return np.full(2, np.nan), np.full(4, np.nan)
+    x, y, w, h = cv2.boundingRect(m)
+    return (np.array([mom["m10"] / mom["m00"], mom["m01"] / mom["m00"]]),
+            np.array([x - 0.5, y - 0.5, x + w - 0.5, y + h - 0.5]))
+
+
 def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *,
                     seed: int, renderer: Renderer | None = None, sensor_seed: int = 0,
                     out: SequenceOutput | None = None, shortcuts: bool = True,
@@ -153,7 +168,8 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
 
     ``shortcuts``: skip work frames do not need (see the module docstring); False computes
     everything on every frame. ``outputs``: any of ``"frames"``, ``"imprint"`` (labels
-    ``indentation_mm``, ``contact_area_mm2``) and ``"markers"`` (``markers_xy_px``,
+    ``indentation_mm``, ``contact_area_mm2``, ``contact_centroid_px``, ``contact_bbox_px``: see
+    :func:`contact_location`) and ``"markers"`` (``markers_xy_px``,
     ``markers_rest_px``); without ``"frames"`` the generator yields None per frame. The
     contact labels are always computed. ``contact``: a finished contact simulation of this
     motion to reuse (no physics run; e.g. to compare fidelity levels on the same contact).
@@ -203,6 +219,8 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
     markers_xy = np.zeros((T, n_markers, 2), np.float32)
     indentation = np.zeros(T, np.float32)
     area = np.zeros(T, np.float32)
+    centroid = np.full((T, 2), np.nan, np.float32)   # NaN: no contact in that frame
+    bbox = np.full((T, 4), np.nan, np.float32)
     window = "touched" if shortcuts else "full"
     for i in range(T):
         force = float(contact.normal_force_n[i])
@@ -216,6 +234,7 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
                             support_stiffness_kpa_per_mm=support, support_length_mm=support_len, window=window)
             indentation[i] = imprint.indentation_mm
             area[i] = imprint.contact_area_mm2
+            centroid[i], bbox[i] = contact_location(imprint.contact_mask)
             t = timer.add("imprint", t)
         if rest is not None:
             if imprint is None:
@@ -242,7 +261,8 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
 
     labels = contact.to_dict()
     if want_imprint:
-        labels.update(indentation_mm=indentation, contact_area_mm2=area)
+        labels.update(indentation_mm=indentation, contact_area_mm2=area, contact_centroid_px=centroid,
+                      contact_bbox_px=bbox)
     if want_markers:
         labels.update(markers_xy_px=markers_xy,
                       markers_rest_px=(np.zeros((0, 2), np.float32) if rest is None else rest.astype(np.float32)))
