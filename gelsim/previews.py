@@ -120,13 +120,14 @@ def pick_across_families(manifest: dict, families: int) -> list[tuple[str, dict]
     return out
 
 
-def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int = 240,
+def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int | None = None,
                  crop: float | None = None) -> np.ndarray:
     """uint8 RGB sheet: rows press, slip, twist; columns ``families`` fabric families
     (:func:`pick_across_families`). Each tile is the frame of peak force, labelled with fabric,
     action, force and contact area; the contact's bounding box and centroid (labels
     ``contact_bbox_px``, ``contact_centroid_px``, when present) in red and stam's centred crop
-    (``crop``: fraction of the shorter side; default stam's cpu preset) in yellow."""
+    (``crop``: fraction of the shorter side; default stam's cpu preset) in yellow. ``tile_px``: tile
+    width, px (default: the frames' own, so the texture shows as STAM gets it)."""
     from .stats import STAM_CPU_CROP, crop_box_px
 
     root = Path(root)
@@ -147,7 +148,7 @@ def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int 
             k = int(np.argmax(lab["normal_force_n"]))
             frame = read_video(root / s["video"])[k]
             h, w = frame.shape[:2]
-            tile = _tile(frame, tile_px)
+            tile = frame.copy() if tile_px is None else _tile(frame, tile_px)
             scale = tile.shape[1] / w
 
             def px(x: float, y: float) -> tuple[int, int]:
@@ -161,7 +162,7 @@ def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int 
                 cv2.rectangle(tile, px(bx0, by0), px(bx1, by1), CONTACT_COLOUR, 1)
                 cx, cy = (float(v) for v in lab["contact_centroid_px"][k])
                 cv2.drawMarker(tile, px(cx, cy), CONTACT_COLOUR, cv2.MARKER_CROSS, 9, 1)
-            tile = _label(tile, f"{s['fabric_id']} {names.get(s['fabric_id'], '')} ({fam})"[:34])
+            tile = _label(tile, f"{s['fabric_id']} {names.get(s['fabric_id'], '')}, {fam}"[:40])
             tile = _label(tile, f"{action} {lab['normal_force_n'][k]:.1f} N {lab['contact_area_mm2'][k]:.0f} mm2",
                           line=1)
             tiles.append(tile)

@@ -248,6 +248,7 @@ QUANTITIES: dict[str, tuple[str, str, str, str]] = {
     "translation_ratio_contact": ("key", "", "fitted translation along shear / \\|shear_mm\\|, contact region",
                                   "median"),
     "translation_ratio_all": ("key", "", "fitted translation along shear / \\|shear_mm\\|, all markers", "median"),
+    "centroid_offset_mm": ("peak_force", "mm", "distance of the contact centroid from the pad's centre", "median"),
     "centroid_in_crop_pct": ("peak_force", "% of seq.", "contact centroid inside the stam cpu crop", "share"),
     "centroid_in_crop_frames_pct": ("sequence", "% of frames", "contact centroid inside the crop, in-contact frames",
                                     "share"),
@@ -310,6 +311,8 @@ def sequence_stats(labels: dict, action: str, mm_per_px: float, width_px: int, h
         bb = np.asarray(labels["contact_bbox_px"], np.float64)
         has = np.isfinite(cen).all(1)
         if has[pf]:
+            centre = np.array([(width_px - 1) / 2.0, (height_px - 1) / 2.0])
+            row["centroid_offset_mm"] = float(np.hypot(*(cen[pf] - centre))) * mm_per_px
             row["centroid_in_crop_pct"] = 100.0 * float(_in_box(cen[pf], box))
             row["bbox_share_in_crop"] = float(_share_in_box(bb[pf], box))
         if has.any():
@@ -533,47 +536,69 @@ FIGURE_PANELS = (
     ("marker_dilation_contact_pct", "marker dilation, contact region, key frame (%)"),
     ("marker_rotation_all_deg", "marker rotation, all markers, key frame (deg)"),
     ("frames_in_contact", "frames in contact"),
-    ("bbox_share_in_crop", "share of the contact bbox inside the stam crop, peak force"),
+    ("centroid_offset_mm", "contact centroid from the pad's centre, peak force (mm)"),
 )
 ACTION_COLOURS = {"press": "tab:blue", "slip": "tab:orange", "twist": "tab:green"}
 
 
+# Agreement panels: (action, ratio, x-axis label); contact region and all markers overlaid.
+AGREEMENT_PANELS = (
+    ("twist", "rotation_ratio", "twist: fitted rotation / twist_deg label"),
+    ("slip", "translation_ratio", "slip: fitted translation / |shear_mm| label"),
+)
+REGION_STYLES = {"contact": ("black", "contact region"), "all": ("tab:gray", "all markers")}
+
+
+def _histograms(ax, series: dict[str, tuple[np.ndarray, str, str]], xlabel: str) -> None:
+    """Step histograms (densities) of ``series`` {key: (values, colour, legend)} on shared bins,
+    medians dashed."""
+    series = {k: (v[np.isfinite(v)], c, lab) for k, (v, c, lab) in series.items()}
+    every = np.concatenate([v for v, _, _ in series.values()])
+    if len(every) == 0:
+        ax.set_visible(False)
+        return
+    lo, hi = np.percentile(every, [0.5, 99.5])  # a few outliers should not squash the histograms
+    if hi <= lo:
+        lo, hi = lo - 0.5, hi + 0.5
+    bins = np.linspace(lo, hi, HIST_BINS + 1)
+    for v, colour, legend in series.values():
+        if len(v):
+            ax.hist(np.clip(v, lo, hi), bins=bins, density=True, histtype="step", lw=1.5, color=colour,
+                    label=f"{legend} ({len(v)})")
+            ax.axvline(np.median(v), color=colour, ls="--", lw=1)
+    ax.set_xlabel(xlabel, fontsize=8)
+    ax.set_yticks([])
+    ax.tick_params(labelsize=7)
+    ax.legend(fontsize=6)
+
+
 def stats_figure(summary: dict, rows: list[dict]) -> np.ndarray:
-    """uint8 (H, W, 3) RGB figure: one histogram panel per quantity, press/slip/twist overlaid
-    (densities, so the 7:1:2 action mix does not hide slip), medians as dashed lines."""
+    """uint8 (H, W, 3) RGB figure: one histogram panel per quantity with press/slip/twist overlaid
+    (densities, so the 7:1:2 action mix does not hide slip), then the label-vs-image ratios of twist
+    and slip sequences, contact region against all markers; medians dashed."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     ncol = 4
-    nrow = math.ceil(len(FIGURE_PANELS) / ncol)
+    nrow = math.ceil((len(FIGURE_PANELS) + len(AGREEMENT_PANELS)) / ncol)
     fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.0 * nrow), squeeze=False)
-    for ax, (q, xlabel) in zip(axes.ravel(), FIGURE_PANELS):
-        vals = {a: np.array([r[q] for r in rows if r["action"] == a], np.float64) for a in ACTIONS}
-        vals = {a: v[np.isfinite(v)] for a, v in vals.items()}
-        every = np.concatenate([v for v in vals.values()]) if vals else np.zeros(0)
-        if len(every) == 0:
-            ax.set_visible(False)
-            continue
-        lo, hi = np.percentile(every, [0.5, 99.5])  # a few outliers should not squash the histograms
-        if hi <= lo:
-            lo, hi = lo - 0.5, hi + 0.5
-        bins = np.linspace(lo, hi, HIST_BINS + 1)
-        for a, v in vals.items():
-            if len(v):
-                ax.hist(np.clip(v, lo, hi), bins=bins, density=True, histtype="step", lw=1.5,
-                        color=ACTION_COLOURS[a], label=f"{a} ({len(v)})")
-                ax.axvline(np.median(v), color=ACTION_COLOURS[a], ls="--", lw=1)
-        ax.set_xlabel(xlabel, fontsize=8)
-        ax.set_yticks([])
-        ax.tick_params(labelsize=7)
-        ax.legend(fontsize=6)
-    for ax in axes.ravel()[len(FIGURE_PANELS):]:
+    flat = list(axes.ravel())
+    for ax, (q, xlabel) in zip(flat, FIGURE_PANELS):
+        _histograms(ax, {a: (np.array([r[q] for r in rows if r["action"] == a], np.float64), ACTION_COLOURS[a], a)
+                         for a in ACTIONS}, xlabel)
+    for ax, (action, ratio, xlabel) in zip(flat[len(FIGURE_PANELS):], AGREEMENT_PANELS):
+        _histograms(ax, {reg: (np.array([r[f"{ratio}_{reg}"] for r in rows if r["action"] == action], np.float64),
+                               colour, legend) for reg, (colour, legend) in REGION_STYLES.items()},
+                    f"{xlabel}, key frame")
+        ax.axvspan(1 - AGREEMENT_TOLERANCE, 1 + AGREEMENT_TOLERANCE, color="tab:green", alpha=0.1, lw=0)
+    for ax in flat[len(FIGURE_PANELS) + len(AGREEMENT_PANELS):]:
         ax.set_visible(False)
     p = summary["profile"]
     fig.suptitle(f"{summary['sequences']} sequences, {p['width_px']}x{p['height_px']} px at {p['mm_per_px']:g} mm/px "
-                 f"(pad {summary['pad_area_mm2']:.0f} mm$^2$); dashed: medians", fontsize=10)
+                 f"(pad {summary['pad_area_mm2']:.0f} mm$^2$); dashed: medians; green band: agreement "
+                 f"(1 $\\pm$ {AGREEMENT_TOLERANCE:g})", fontsize=10)
     fig.tight_layout()
     fig.canvas.draw()
     img = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()

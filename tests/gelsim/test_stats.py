@@ -211,6 +211,7 @@ def test_key_frames_and_sequence_stats():
     assert row["centroid_in_crop_pct"] == 0.0
     assert row["centroid_in_crop_frames_pct"] == pytest.approx(75.0)
     assert row["bbox_share_in_crop"] == 0.0
+    assert row["centroid_offset_mm"] == pytest.approx(math.hypot(159.5 - 20, 119.5 - 20) * MMPP, rel=1e-6)
     row = sequence_stats(lab, "press", MMPP, 320, 240, max_indentation_mm=2.0)
     assert row["frame_key"] == 3 and row["bottomed_out_pct"] == 0.0
     with pytest.raises(GelsimError, match="action"):
