@@ -146,11 +146,14 @@ def contact_location(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     pixels' edges, so a single pixel at column 5 spans x 4.5-5.5; both NaN when the mask is empty.
     """
     m = np.ascontiguousarray(mask).view(np.uint8)
-    mom = cv2.moments(m, binaryImage=True)
-    if mom["m00"] == 0:
+    # Column and row counts (cv2.reduce: 0.06 ms at 960x720, against 1.4 ms for cv2.moments).
+    cols = cv2.reduce(m, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel().astype(np.float64)
+    n = cols.sum()
+    if n == 0:
         return np.full(2, np.nan), np.full(4, np.nan)
+    rows = cv2.reduce(m, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel().astype(np.float64)
     x, y, w, h = cv2.boundingRect(m)
-    return (np.array([mom["m10"] / mom["m00"], mom["m01"] / mom["m00"]]),
+    return (np.array([cols @ np.arange(cols.size) / n, rows @ np.arange(rows.size) / n]),
             np.array([x - 0.5, y - 0.5, x + w - 0.5, y + h - 0.5]))
 
 
