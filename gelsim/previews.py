@@ -120,6 +120,11 @@ def pick_across_families(manifest: dict, families: int) -> list[tuple[str, dict]
     return out
 
 
+# Widest tile of the action sheet, px: the cpu preset's 320 px frames tile at their own size (the
+# texture as STAM gets it); 960 px frames are shown at a third, keeping six columns under 2,000 px.
+ACTION_TILE_MAX_PX = 320
+
+
 def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int | None = None,
                  crop: float | None = None) -> np.ndarray:
     """uint8 RGB sheet: rows press, slip, twist; columns ``families`` fabric families
@@ -127,7 +132,7 @@ def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int 
     action, force and contact area; the contact's bounding box and centroid (labels
     ``contact_bbox_px``, ``contact_centroid_px``, when present) in red and stam's centred crop
     (``crop``: fraction of the shorter side; default stam's cpu preset) in yellow. ``tile_px``: tile
-    width, px (default: the frames' own, so the texture shows as STAM gets it)."""
+    width, px (default: the frames' own, at most :data:`ACTION_TILE_MAX_PX`)."""
     from .stats import STAM_CPU_CROP, crop_box_px
 
     root = Path(root)
@@ -148,7 +153,8 @@ def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int 
             k = int(np.argmax(lab["normal_force_n"]))
             frame = read_video(root / s["video"])[k]
             h, w = frame.shape[:2]
-            tile = frame.copy() if tile_px is None else _tile(frame, tile_px)
+            width = min(w, ACTION_TILE_MAX_PX) if tile_px is None else tile_px
+            tile = frame.copy() if width == w else _tile(frame, width)
             scale = tile.shape[1] / w
 
             def px(x: float, y: float) -> tuple[int, int]:

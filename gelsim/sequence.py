@@ -146,7 +146,7 @@ def contact_location(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     pixels' edges, so a single pixel at column 5 spans x 4.5-5.5; both NaN when the mask is empty.
     """
     m = np.ascontiguousarray(mask).view(np.uint8)
-    # Column and row counts (cv2.reduce: 0.06 ms at 960x720, against 1.4 ms for cv2.moments).
+    # Column and row counts by cv2.reduce: 0.16 ms in all at 960x720, against 1.4 ms for cv2.moments.
     cols = cv2.reduce(m, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel().astype(np.float64)
     n = cols.sum()
     if n == 0:
