@@ -7,6 +7,8 @@ Layout of a dataset directory ``DIR`` (``stam`` reads it; documented in the READ
     DIR/labels/fNNN/<id>.npz        per-frame labels of that sequence
     DIR/records/<id>.json           written last for each finished sequence (checksums, timings)
     DIR/previews/*.png              a frame strip per action and a contact sheet of all fabrics
+    DIR/previews/dataset_stats.*    statistics per action from the labels (gelsim.stats), and
+                                    dataset_actions.png: press/slip/twist frames across families
 
 Every sequence has its own seed derived from (dataset seed, fabric id, sequence index),
 so the output is identical whatever the number of workers and however often the run is
@@ -465,6 +467,10 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
 
         write_previews(root, manifest)
     atomic_write_json(root / "manifest.json", manifest)
+    if previews and manifest["complete"]:
+        from .stats import write_stats
+
+        write_stats(root, manifest=manifest)  # previews/dataset_stats.{json,md,png}, dataset_actions.png
     return manifest
 
 

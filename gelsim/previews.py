@@ -1,4 +1,5 @@
-"""Preview images of a generated dataset: a frame strip per action and a contact sheet."""
+"""Preview images of a generated dataset: a frame strip per action, a contact sheet of the fabrics and
+a sheet of press, slip and twist frames across families (:func:`action_sheet`)."""
 from __future__ import annotations
 
 import math
@@ -7,15 +8,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .errors import GelsimError
+from .realism import write_png as _write_png
 from .video import read_video
 
 LABEL_SCALE = 0.4  # OpenCV Hershey font scale for 160-320 px tiles
+LINE_PX = 14       # baseline spacing of label lines at LABEL_SCALE (the font is about 9 px tall there)
 
 
-def _label(img: np.ndarray, text: str) -> np.ndarray:
+def _label(img: np.ndarray, text: str, line: int = 0) -> np.ndarray:
+    """``img`` with ``text`` in white on a black outline, on label line ``line`` from the top."""
     out = img.copy()
-    cv2.putText(out, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, LABEL_SCALE, (0, 0, 0), 3, cv2.LINE_AA)
-    cv2.putText(out, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, LABEL_SCALE, (255, 255, 255), 1, cv2.LINE_AA)
+    org = (4, LINE_PX * (line + 1))
+    cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, LABEL_SCALE, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, LABEL_SCALE, (255, 255, 255), 1, cv2.LINE_AA)
     return out
 
 
@@ -63,20 +69,109 @@ def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Pa
         frames = read_video(root / s["video"])
         tiles.append(_label(_tile(frames[k], tile_px), f"{s['fabric_id']} {names.get(s['fabric_id'], '')}"[:28]))
     if tiles:
-        cols = min(10, len(tiles))
-        rows = math.ceil(len(tiles) / cols)
-        th, tw = tiles[0].shape[:2]
-        sheet = np.full((rows * th, cols * tw, 3), 255, np.uint8)
-        for i, t in enumerate(tiles):
-            r, c = divmod(i, cols)
-            sheet[r * th:(r + 1) * th, c * tw:(c + 1) * tw] = t
         p = out_dir / "contact_sheet.png"
-        _write_png(p, sheet)
+        _write_png(p, _grid(tiles, min(10, len(tiles))))
         written.append(p)
     return written
 
 
-def _write_png(path: Path, rgb: np.ndarray) -> None:
-    tmp = path.with_name(f".{path.stem}.partial.png")
-    cv2.imwrite(str(tmp), rgb[:, :, ::-1])
-    tmp.replace(path)
+def _grid(tiles: list[np.ndarray], cols: int) -> np.ndarray:
+    """Equal-sized tiles in row-major order on a white sheet ``cols`` tiles wide."""
+    rows = math.ceil(len(tiles) / cols)
+    th, tw = tiles[0].shape[:2]
+    sheet = np.full((rows * th, cols * tw, 3), 255, np.uint8)
+    for i, t in enumerate(tiles):
+        r, c = divmod(i, cols)
+        sheet[r * th:(r + 1) * th, c * tw:(c + 1) * tw] = t
+    return sheet
+
+
+CROP_COLOUR = (255, 220, 0)      # the stam crop: yellow, visible on the gel's grey-blue
+CONTACT_COLOUR = (255, 40, 40)   # the contact's bounding box and centroid: red
+
+
+def pick_across_families(manifest: dict, families: int) -> list[tuple[str, dict]]:
+    """(family, {action: sequence}) for ``families`` families spread evenly over those present.
+
+    Per family, the first fabric (by id) that has a touching sequence of every action, else the
+    first touching sequence of each action in the family; per action, that fabric's first such
+    sequence in manifest order. Deterministic.
+    """
+    fam_of = {f["id"]: f.get("family", "?") for f in manifest.get("fabrics", [])}
+    seqs = [s for s in manifest["sequences"] if "labels" in s and s.get("peak_force_n", 0) > 0]
+    order: list[str] = []
+    for fid in sorted(fam_of):
+        if fam_of[fid] not in order:
+            order.append(fam_of[fid])
+    if families < len(order):
+        order = [order[round(k)] for k in np.linspace(0, len(order) - 1, families)]
+    out = []
+    for fam in order:
+        in_fam = [s for s in seqs if fam_of.get(s["fabric_id"]) == fam]
+        if not in_fam:
+            continue
+        full = [fid for fid in sorted({s["fabric_id"] for s in in_fam})
+                if {s["action"] for s in in_fam if s["fabric_id"] == fid} >= {"press", "slip", "twist"}]
+        pool = [s for s in in_fam if s["fabric_id"] == full[0]] if full else in_fam
+        picked = {}
+        for s in pool:
+            picked.setdefault(s["action"], s)
+        out.append((fam, picked))
+    return out
+
+
+# Widest tile of the action sheet, px: the cpu preset's 320 px frames tile at their own size (the
+# texture as STAM gets it); 960 px frames are shown at a third, keeping six columns under 2,000 px.
+ACTION_TILE_MAX_PX = 320
+
+
+def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int | None = None,
+                 crop: float | None = None) -> np.ndarray:
+    """uint8 RGB sheet: rows press, slip, twist; columns ``families`` fabric families
+    (:func:`pick_across_families`). Each tile is the frame of peak force, labelled with fabric,
+    action, force and contact area; the contact's bounding box and centroid (labels
+    ``contact_bbox_px``, ``contact_centroid_px``, when present) in red and stam's centred crop
+    (``crop``: fraction of the shorter side; default stam's cpu preset) in yellow. ``tile_px``: tile
+    width, px (default: the frames' own, at most :data:`ACTION_TILE_MAX_PX`)."""
+    from .stats import STAM_CPU_CROP, crop_box_px
+
+    root = Path(root)
+    crop = STAM_CPU_CROP if crop is None else crop
+    picks = pick_across_families(manifest, families)
+    if not picks:
+        raise GelsimError(f"{root} has no sequence in contact to show; generate the dataset first")
+    names = {f["id"]: f["name"] for f in manifest.get("fabrics", [])}
+    tiles: list[np.ndarray | None] = []
+    for action in ("press", "slip", "twist"):
+        for fam, by_action in picks:
+            s = by_action.get(action)
+            if s is None:
+                tiles.append(None)
+                continue
+            with np.load(root / s["labels"]) as z:
+                lab = {k: z[k] for k in z.files}
+            k = int(np.argmax(lab["normal_force_n"]))
+            frame = read_video(root / s["video"])[k]
+            h, w = frame.shape[:2]
+            width = min(w, ACTION_TILE_MAX_PX) if tile_px is None else tile_px
+            tile = frame.copy() if width == w else _tile(frame, width)
+            scale = tile.shape[1] / w
+
+            def px(x: float, y: float) -> tuple[int, int]:
+                # edges in source px -> tile px (pixel centres at integers in both)
+                return int(round((x + 0.5) * scale - 0.5)), int(round((y + 0.5) * scale - 0.5))
+
+            x0, y0, x1, y1 = crop_box_px(w, h, crop)
+            cv2.rectangle(tile, px(x0, y0), px(x1, y1), CROP_COLOUR, 1)
+            if "contact_bbox_px" in lab and np.isfinite(lab["contact_bbox_px"][k]).all():
+                bx0, by0, bx1, by1 = (float(v) for v in lab["contact_bbox_px"][k])
+                cv2.rectangle(tile, px(bx0, by0), px(bx1, by1), CONTACT_COLOUR, 1)
+                cx, cy = (float(v) for v in lab["contact_centroid_px"][k])
+                cv2.drawMarker(tile, px(cx, cy), CONTACT_COLOUR, cv2.MARKER_CROSS, 9, 1)
+            tile = _label(tile, f"{s['fabric_id']} {names.get(s['fabric_id'], '')}, {fam}"[:40])
+            tile = _label(tile, f"{action} {lab['normal_force_n'][k]:.1f} N {lab['contact_area_mm2'][k]:.0f} mm2",
+                          line=1)
+            tiles.append(tile)
+    shape = next(t.shape for t in tiles if t is not None)
+    blank = np.full(shape, 255, np.uint8)
+    return _grid([blank if t is None else t for t in tiles], len(picks))

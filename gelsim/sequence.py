@@ -139,6 +139,24 @@ def _negligible_px(shear_mm, twist_deg: float, profile: SensorProfile) -> tuple[
     return shear_px < NEGLIGIBLE_PX, twist_px < NEGLIGIBLE_PX
 
 
+def contact_location(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where a bool (H, W) contact mask lies, in px (x = column, y = row, pixel centres at integers).
+
+    Returns the centroid float (2,) (x, y) and the bounding box float (4,) (x0, y0, x1, y1) of its
+    pixels' edges, so a single pixel at column 5 spans x 4.5-5.5; both NaN when the mask is empty.
+    """
+    m = np.ascontiguousarray(mask).view(np.uint8)
+    # Column and row counts by cv2.reduce: 0.16 ms in all at 960x720, against 1.4 ms for cv2.moments.
+    cols = cv2.reduce(m, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel().astype(np.float64)
+    n = cols.sum()
+    if n == 0:
+        return np.full(2, np.nan), np.full(4, np.nan)
+    rows = cv2.reduce(m, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel().astype(np.float64)
+    x, y, w, h = cv2.boundingRect(m)
+    return (np.array([cols @ np.arange(cols.size) / n, rows @ np.arange(rows.size) / n]),
+            np.array([x - 0.5, y - 0.5, x + w - 0.5, y + h - 0.5]))
+
+
 def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *,
                     seed: int, renderer: Renderer | None = None, sensor_seed: int = 0,
                     out: SequenceOutput | None = None, shortcuts: bool = True,
@@ -154,7 +172,8 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
 
     ``shortcuts``: skip work frames do not need (see the module docstring); False computes
     everything on every frame. ``outputs``: any of ``"frames"``, ``"imprint"`` (labels
-    ``indentation_mm``, ``contact_area_mm2``) and ``"markers"`` (``markers_xy_px``,
+    ``indentation_mm``, ``contact_area_mm2``, ``contact_centroid_px``, ``contact_bbox_px``: see
+    :func:`contact_location`) and ``"markers"`` (``markers_xy_px``,
     ``markers_rest_px``); without ``"frames"`` the generator yields None per frame. The
     contact labels are always computed. ``contact``: a finished contact simulation of this
     motion to reuse (no physics run; e.g. to compare fidelity levels on the same contact).
@@ -202,6 +221,8 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
     markers_xy = np.zeros((T, n_markers, 2), np.float32)
     indentation = np.zeros(T, np.float32)
     area = np.zeros(T, np.float32)
+    centroid = np.full((T, 2), np.nan, np.float32)   # NaN: no contact in that frame
+    bbox = np.full((T, 4), np.nan, np.float32)
     window = "touched" if shortcuts else "full"
     prev = None  # the previous frame's imprint warm-starts the next (same result, fewer iterations)
     for i in range(T):
@@ -217,6 +238,7 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
             prev = imprint if touching else None
             indentation[i] = imprint.indentation_mm
             area[i] = imprint.contact_area_mm2
+            centroid[i], bbox[i] = contact_location(imprint.contact_mask)
             t = timer.add("imprint", t)
         if rest is not None:
             if imprint is None:
@@ -243,7 +265,8 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
 
     labels = contact.to_dict()
     if want_imprint:
-        labels.update(indentation_mm=indentation, contact_area_mm2=area)
+        labels.update(indentation_mm=indentation, contact_area_mm2=area, contact_centroid_px=centroid,
+                      contact_bbox_px=bbox)
     if want_markers:
         labels.update(markers_xy_px=markers_xy,
                       markers_rest_px=(np.zeros((0, 2), np.float32) if rest is None else rest.astype(np.float32)))

@@ -1,4 +1,4 @@
-"""``gelsim generate`` and ``gelsim verify``."""
+"""``gelsim generate`` and ``gelsim verify`` (with ``--stats``: the dataset's statistics, gelsim.stats)."""
 from __future__ import annotations
 
 import argparse
@@ -51,7 +51,19 @@ def register(sub) -> None:
                                    "decodable, expected frame count. Exit status 1 on any fault.")
     v.add_argument("dir", metavar="DIR", help="dataset directory")
     v.add_argument("--no-decode", action="store_true", help="skip decoding the videos (checksums only)")
-    v.add_argument("--json", action="store_true", help="print {ok, sequences, faults} as JSON")
+    v.add_argument("--stats", action="store_true",
+                   help="also report the dataset's statistics per action from the labels (contact area in mm^2 and "
+                        "share of the pad, normal force, indentation, shear and twist labels, marker-field "
+                        "translation/rotation/dilation, frames in contact, label-vs-marker agreement, how often "
+                        "stam's crop holds the contact) and write dataset_stats.json/.md/.png and "
+                        "dataset_actions.png (press/slip/twist frames across families) to --stats-out")
+    v.add_argument("--stats-out", metavar="OUT", help="folder for the --stats files [default: DIR/previews]")
+    v.add_argument("--crop", type=float, metavar="FRACTION", default=None,
+                   help="side of stam's centred crop as a fraction of the frame's shorter side, for --stats "
+                        "[default: 0.5, stam/configs/cpu.toml]")
+    v.add_argument("--no-sheet", action="store_true", help="with --stats: skip dataset_actions.png (no video decoding)")
+    v.add_argument("--json", action="store_true", help="print {ok, sequences, faults} as JSON (with --stats: "
+                                                       "also stats and stats_files)")
     v.set_defaults(handler=run_verify)
 
 
@@ -173,11 +185,27 @@ def run_verify(args: argparse.Namespace) -> int:
     from . import print_json
 
     m = load_manifest(args.dir)
+    if not args.stats and (args.stats_out or args.crop is not None or args.no_sheet):
+        raise GelsimError("--stats-out, --crop and --no-sheet go with --stats; add --stats")
+    from ..stats import STAM_CPU_CROP, check_crop, write_stats
+
+    crop = check_crop(STAM_CPU_CROP if args.crop is None else args.crop)
     faults = verify(args.dir, decode=not args.no_decode)
+    summary, paths = None, []
+    if args.stats:
+        summary, paths = write_stats(args.dir, args.stats_out, crop=crop, sheet=not args.no_sheet)
     if args.json:
-        print_json({"ok": not faults, "sequences": len(m.get("sequences", [])), "faults": faults})
+        doc = {"ok": not faults, "sequences": len(m.get("sequences", [])), "faults": faults}
+        if summary is not None:
+            doc.update(stats=summary, stats_files=[str(p) for p in paths])
+        print_json(doc)
     else:
         for f in faults:
             print(f)
+        if summary is not None:
+            from ..stats import stats_report
+
+            print(stats_report(summary))
+            print("wrote " + ", ".join(str(p) for p in paths))
         print(f"{len(m.get('sequences', []))} sequences checked: " + ("OK" if not faults else f"{len(faults)} fault(s)"))
     return 1 if faults else 0

@@ -110,6 +110,39 @@ def test_verify_catches_truncated_and_missing(tiny, tmp_path, capsys):
     assert main(["verify", str(tiny)]) == 0
 
 
+def test_verify_stats_reports_and_writes_figures(tiny, tmp_path, capsys):
+    out = tmp_path / "stats"
+    assert main(["verify", str(tiny), "--no-decode", "--stats", "--stats-out", str(out), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["ok"] and doc["faults"] == []
+    st = doc["stats"]
+    assert sum(a["sequences"] for a in st["actions"].values()) == 6
+    assert {str(out / n) for n in ("dataset_stats.json", "dataset_stats.md", "dataset_stats.png",
+                                   "dataset_actions.png")} == set(doc["stats_files"])
+    assert json.loads((out / "dataset_stats.json").read_text()) == st
+    # the contact area at peak force, recomputed here from the labels
+    m = load_manifest(tiny)
+    areas = []
+    for s in m["sequences"]:
+        if s["action"] == "press":
+            with np.load(tiny / s["labels"]) as z:
+                areas.append(float(z["contact_area_mm2"][np.argmax(z["normal_force_n"])]))
+    q = st["actions"]["press"]["quantities"]["contact_area_mm2"]
+    assert q["n"] == len(areas) and q["median"] == pytest.approx(np.median(areas), rel=1e-6)
+    assert q["p5"] <= q["median"] <= q["p95"]
+    # the text form prints the table
+    assert main(["verify", str(tiny), "--no-decode", "--stats", "--stats-out", str(out), "--no-sheet"]) == 0
+    text = capsys.readouterr().out
+    assert "| contact area | mm^2 | peak force |" in text and "sequences checked: OK" in text
+
+
+@pytest.mark.parametrize("args,msg", [(["--crop", "0.5"], "add --stats"), (["--stats", "--crop", "1.5"], "crop")])
+def test_verify_stats_bad_options_one_line_exit_2(tiny, capsys, args, msg):
+    assert main(["verify", str(tiny), "--no-decode", *args]) == 2
+    err = capsys.readouterr().err
+    assert msg in err and err.count("\n") == 1
+
+
 @pytest.mark.parametrize("args,msg", [
     (["--fabrics", "101"], "fabrics"),
     (["--fabrics", "0"], "fabrics"),

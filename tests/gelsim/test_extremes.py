@@ -292,8 +292,11 @@ def test_sequence_extremes(fabric_id, motion_kw):
     frames = list(render_sequence(fabric, m, profile, FAST, seed=2, out=out))
     assert len(frames) == m.num_frames
     assert all(f.dtype == np.uint8 and f.shape == (48, 64, 3) for f in frames)
+    touched = out.labels["contact_area_mm2"] > 0
     for k, v in out.labels.items():
-        if v.dtype != bool:
+        if k in ("contact_centroid_px", "contact_bbox_px"):  # NaN by definition in frames without contact
+            assert np.isfinite(v[touched]).all() and np.isnan(v[~touched]).all(), k
+        elif v.dtype != bool:
             assert np.isfinite(v).all(), k
     assert out.labels["indentation_mm"].max() <= profile.gel.max_indentation_mm + 1e-6
 

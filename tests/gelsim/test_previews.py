@@ -1,0 +1,77 @@
+"""Previews of a generated dataset: the action sheet and the statistics written with them."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from gelsim.cli import main
+from gelsim.dataset import load_manifest
+from gelsim.previews import CONTACT_COLOUR, CROP_COLOUR, action_sheet, pick_across_families
+from gelsim.stats import STAM_CPU_CROP, crop_box_px
+
+TINY = ["--fabrics", "3", "--sequences-per-fabric", "2", "--resolution", "96x72", "--fidelity", "fast",
+        "--frames", "8-10", "--precontact", "2-3", "--json", "--workers", "1"]
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    out = tmp_path_factory.mktemp("prev") / "ds"
+    assert main(["generate", "--out", str(out), *TINY]) == 0
+    return out
+
+
+def test_generate_writes_the_statistics_with_the_previews(tiny):
+    prev = tiny / "previews"
+    for name in ("dataset_stats.json", "dataset_stats.md", "dataset_stats.png", "dataset_actions.png"):
+        assert (prev / name).stat().st_size > 0
+    st = json.loads((prev / "dataset_stats.json").read_text())
+    m = load_manifest(tiny)
+    for a, entry in st["actions"].items():
+        assert entry["sequences"] == sum(1 for s in m["sequences"] if s["action"] == a)
+    # the table's peak forces are the manifest's, summarised independently here
+    press = [s["peak_force_n"] for s in m["sequences"] if s["action"] == "press"]
+    assert st["actions"]["press"]["quantities"]["normal_force_n"]["median"] == pytest.approx(np.median(press), rel=1e-5)
+    assert not list(prev.glob("*.tmp*")) and not list(prev.glob(".*partial*"))
+
+
+def test_action_sheet_shows_every_action_with_crop_and_contact(tiny):
+    m = load_manifest(tiny)
+    sheet = action_sheet(tiny, m, tile_px=96)
+    # the 3 tiny fabrics are all plain weaves: one column, rows press, slip, twist
+    assert sheet.shape == (3 * 72, 96, 3) and sheet.dtype == np.uint8
+    x0, y0, x1, y1 = crop_box_px(96, 72, STAM_CPU_CROP)
+    for row in range(3):
+        tile = sheet[row * 72:(row + 1) * 72]
+        # the crop rectangle's top edge, drawn in its colour (left of the centre: clear of the label text)
+        top = tile[int(round(y0 + 0.5 - 0.5)), int(x0) + 2:int(x1) - 2]
+        assert (top == CROP_COLOUR).all(axis=1).sum() >= 0.8 * len(top)
+        assert (tile == CONTACT_COLOUR).all(axis=2).any()
+
+
+def _manifest(families):
+    fabrics = [{"id": i + 1, "name": f"fab{i + 1}", "family": fam} for i, fam in enumerate(families)]
+    seqs = []
+    for f in fabrics:
+        for k, action in enumerate(("press", "press", "slip", "twist")):
+            seqs.append({"id": f"f{f['id']:03d}-s{k:04d}", "fabric_id": f["id"], "action": action,
+                         "labels": "x", "video": "y", "peak_force_n": 1.0})
+    return {"fabrics": fabrics, "sequences": seqs}
+
+
+def test_pick_across_families_spreads_and_keeps_one_fabric_per_family():
+    fams = ["plain", "plain", "twill", "satin", "knit", "knit", "felt", "mesh"]
+    m = _manifest(fams)
+    # the first plain fabric has no twist sequence: the family's second one is used for all three
+    m["sequences"] = [s for s in m["sequences"] if not (s["fabric_id"] == 1 and s["action"] == "twist")]
+    picks = pick_across_families(m, 3)
+    assert [f for f, _ in picks] == ["plain", "satin", "mesh"]  # families 0, round(2.5) = 2 and 5 of six
+    plain = picks[0][1]
+    assert set(plain) == {"press", "slip", "twist"} and {s["fabric_id"] for s in plain.values()} == {2}
+    assert plain["press"]["id"] == "f002-s0000"
+    assert len(pick_across_families(m, 10)) == 6
+    # sequences that never touch are not shown
+    for s in m["sequences"]:
+        s["peak_force_n"] = 0.0
+    assert pick_across_families(m, 3) == []

@@ -1,0 +1,64 @@
+"""Contact location labels of gelsim.sequence: centroid and bounding box of the contact mask."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gelsim.fabrics import load_catalog
+from gelsim.fidelity import get_fidelity
+from gelsim.motion import sample_motion
+from gelsim.sensor import load_profile
+from gelsim.sequence import SequenceOutput, contact_location, render_sequence
+
+
+def test_contact_location_of_a_known_mask():
+    mask = np.zeros((20, 30), bool)
+    mask[4:7, 10:20] = True   # rows 4-6, columns 10-19
+    c, b = contact_location(mask)
+    np.testing.assert_allclose(c, [14.5, 5.0])
+    np.testing.assert_allclose(b, [9.5, 3.5, 19.5, 6.5])
+    # the box's area (px^2) is the mask's pixel count for a rectangle
+    assert (b[2] - b[0]) * (b[3] - b[1]) == pytest.approx(mask.sum())
+
+
+def test_contact_location_single_pixel_and_empty():
+    mask = np.zeros((5, 5), bool)
+    mask[2, 3] = True
+    c, b = contact_location(mask)
+    np.testing.assert_allclose(c, [3.0, 2.0])
+    np.testing.assert_allclose(b, [2.5, 1.5, 3.5, 2.5])
+    c, b = contact_location(np.zeros((5, 5), bool))
+    assert np.isnan(c).all() and np.isnan(b).all()
+
+
+def test_contact_location_of_a_strided_mask():
+    big = np.zeros((10, 10), bool)
+    big[2, 4] = True
+    c, _ = contact_location(big[::2, ::2])  # not contiguous
+    np.testing.assert_allclose(c, [2.0, 1.0])
+
+
+def test_sequence_labels_locate_the_contact():
+    profile = load_profile("vitac").with_resolution(160, 120)
+    fid = get_fidelity("fast")
+    T, pre = 8, 3
+    motion = sample_motion("twist", 5, frames=(T, T), precontact=(pre, pre))
+    out = SequenceOutput({}, {})
+    for _ in render_sequence(load_catalog()[21], motion, profile, fid, seed=5, out=out, outputs={"imprint"}):
+        pass
+    lab = out.labels
+    cen, box = lab["contact_centroid_px"], lab["contact_bbox_px"]
+    assert cen.shape == (T, 2) and box.shape == (T, 4)
+    assert cen.dtype == np.float32 and box.dtype == np.float32
+    has = lab["contact_area_mm2"] > 0
+    assert has.sum() >= 3 and not has[:pre].any()
+    # NaN exactly where there is no contact
+    assert np.isnan(cen[~has]).all() and np.isnan(box[~has]).all()
+    assert np.isfinite(cen[has]).all() and np.isfinite(box[has]).all()
+    h, w = profile.shape
+    for c, b, a in zip(cen[has], box[has], lab["contact_area_mm2"][has]):
+        assert b[0] <= c[0] <= b[2] and b[1] <= c[1] <= b[3]
+        assert -0.5 <= b[0] < b[2] <= w - 0.5 and -0.5 <= b[1] < b[3] <= h - 0.5
+        # the box holds the whole contact area
+        box_mm2 = (b[2] - b[0]) * (b[3] - b[1]) * profile.image.mm_per_px ** 2
+        assert box_mm2 >= a * (1 - 1e-4)
