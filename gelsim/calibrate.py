@@ -5,8 +5,10 @@ What is fitted, from the selected frames only:
 * background: the no-contact frame ``f0``, smoothed and stored at half resolution
   as a PNG beside the profile (``[background] image``);
 * shading: the lookup table of :mod:`gelsim.optics.lut` (colour change over the
-  surface normal with a first-order spatial term, plus a shadow colour per in-plane
-  direction), by regularised linear least squares on the pixels near each contact;
+  surface normal with a first-order spatial term, plus a shadow colour per LED, the
+  depth term and the halo term), by regularised, weighted linear least squares on the
+  pixels near each contact: pixels outside the contact weigh less (``OUTSIDE_WEIGHT``),
+  since there the imprint model's normals are approximate;
 * gel response: the gel thickness (sets the pyramid spread of the imprint around the
   ball) and the membrane smoothing, and the shadows' grazing elevation, chosen by
   two-fold cross-validation among the selected frames (the table is refitted for
@@ -31,7 +33,7 @@ from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
 from .errors import GelsimError
-from .optics.lut import normal_xy, shadow_factors
+from .optics.lut import coarse_features, normal_xy, shadow_factors
 from .params import dump_toml, to_dict
 from .realism import DISK_RADII, DataPack, ball_depth, disk_mask
 
@@ -41,6 +43,24 @@ FIT_RADII = 1.75        # fit inside 1.75 contact radii: the scored disk (1.5) p
 FIT_STRIDE = 2          # every 2nd pixel each way: neighbours are nearly the same sample (the image is smooth)
 SMOOTH_WEIGHT = 3.0     # second-difference penalty between bins, per unit of sample weight; tuned on even frames
 RIDGE_WEIGHT = 1e-3     # keeps bins without samples near zero
+# Pixels outside the contact weigh 0.3 in the table's fit. There the normals come from the imprint
+# model's spread, which ends at about 1.8 contact radii while real presses change the image out to
+# 2.5 (docs/realism.md): the real gel is still sloped where the model's is flat. At near-flat normals
+# these pixels outnumber the ball's own flat top (exact normals) about 100:1, and taught the table
+# a step at flat: on the R1.5's held-out frames the response to slopes below 0.1 was 2.1-3.1x the
+# real one. Two-fold cross-validation on the R1.5's even frames, skill / RMS error at slopes < 0.2:
+# before (no depth or halo term, weight 1) 0.927 / 7.2 DN; with both terms, outside weight
+# 1 / 0.3 / 0.1: 0.931 / 5.6, 0.930 / 4.9, 0.926 / 4.5 DN. 0.3 keeps the skill and removes most
+# of the step; lower weights start to cost skill and leave blue with a dead zone near flat.
+OUTSIDE_WEIGHT = 0.3
+# The halo term (gelsim.optics.lut): widths chosen by the same cross-validation (1 and 2 mm, and the
+# outside weight, were compared): 1 mm reaches about 3 mm around a press, the real halo's extent; the
+# base blur of 0.25 mm removes relief finer than about 1 mm (a fabric's weave), so that the halo
+# follows the press's shape and not its texture; the gate, 0.02 mm of spill, is a fiftieth of the
+# R1.5's presses (about 1 mm deep), so the halo switches on within a few pixels of the spill's edge.
+HALO_SIGMA_MM = 1.0
+HALO_BASE_MM = 0.25
+HALO_GATE_MM = 0.02
 SHADOW_SAT_MM = 0.1     # occlusion at which a shadow is half dark: a tenth of the ball's 1 mm presses, so a
                         # shadow deepens over its first third and fades out over its last tenth
 BG_SCALE = 2            # background stored at 1/2 resolution: keeps 2 px detail, is not the raw frame
@@ -115,7 +135,9 @@ def fit_noise(pack: DataPack, idx: list[int]) -> tuple[float, float]:
 # Shading table
 # --------------------------------------------------------------------------------------
 def _frame_samples(profile, pack: DataPack, i: int, bg: np.ndarray, ball_mm: float, shadow: dict | None):
-    """Features and targets of frame ``i``: dict of nx, ny, xn, yn, occ (K, n) and target (n, 3).
+    """Features and targets of frame ``i``: dict of nx, ny, xn, yn, ``extra`` (K + 6, n: the K shadow
+    factors, the depth term's basis, the halo's features), ``n_shadow`` (K), target (n, 3) and the
+    samples' fit ``weight`` (n,) (1 inside the annotated contact, OUTSIDE_WEIGHT outside).
 
     ``shadow``: None, or the shadow terms' ``shadow_dirs_deg``, ``shadow_tan``, ``shadow_sat_mm``
     and ``shadow_soft_mm`` (the keys of the table file)."""
@@ -131,13 +153,16 @@ def _frame_samples(profile, pack: DataPack, i: int, bg: np.ndarray, ball_mm: flo
     yy, xx = np.mgrid[y0:y1:FIT_STRIDE, x0:x1:FIT_STRIDE]
     keep = (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= rr * rr
     yy, xx = yy[keep], xx[keep]
+    inside = (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= r * r
     fw, fh = profile.field_mm
     out = {
         "nx": nx[yy, xx], "ny": ny[yy, xx],
         "xn": ((xx - (w - 1) / 2.0) * mm / (fw / 2.0)).astype(np.float32),
         "yn": ((yy - (h - 1) / 2.0) * mm / (fh / 2.0)).astype(np.float32),
         "target": pack.imgs[i][yy, xx].astype(np.float32) - bg[yy, xx],
+        "weight": np.where(inside, 1.0, OUTSIDE_WEIGHT).astype(np.float32),
     }
+    extra = []
     if shadow is not None:
         f, to_full = shadow_factors(depth, mm, shadow["shadow_dirs_deg"], shadow["shadow_tan"],
                                     shadow["shadow_sat_mm"], shadow["shadow_soft_mm"])
@@ -145,13 +170,23 @@ def _frame_samples(profile, pack: DataPack, i: int, bg: np.ndarray, ball_mm: flo
         full = np.stack([cv2.warpAffine(np.ascontiguousarray(f[..., k]), to_full, (w, h),
                                         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                         borderMode=cv2.BORDER_REPLICATE) for k in range(f.shape[-1])], axis=-1)
-        out["occ"] = full[yy, xx].T
+        extra.append(full[yy, xx].T)
+    out["n_shadow"] = len(extra[0]) if extra else 0
+    halo = {k: float(v) for k, v in halo_spec().items()}
+    extra.append(coarse_features(depth, mm, profile.field_mm, True, halo)[yy, xx].T)
+    out["extra"] = np.concatenate(extra).astype(np.float32)
     del roi
     return out
 
 
+def halo_spec() -> dict:
+    """The halo term's widths (table-file keys)."""
+    return {"halo_sigma_mm": np.float32(HALO_SIGMA_MM), "halo_base_mm": np.float32(HALO_BASE_MM),
+            "halo_gate_mm": np.float32(HALO_GATE_MM)}
+
+
 def _design(samples: list[dict], nb: int) -> tuple[sparse.csr_matrix, np.ndarray]:
-    """Sparse design matrix (n, 3 nb^2 [+ K]) and targets (n, 3) of the table model."""
+    """Sparse design matrix (n, 3 nb^2 + K + 6) and targets (n, 3) of the table model (unweighted)."""
     nx = np.concatenate([s["nx"] for s in samples])
     ny = np.concatenate([s["ny"] for s in samples])
     xn = np.concatenate([s["xn"] for s in samples])
@@ -173,13 +208,13 @@ def _design(samples: list[dict], nb: int) -> tuple[sparse.csr_matrix, np.ndarray
             cols.append(b * 3 + k)
             vals.append(wgt * bv)
     ncol = 3 * nb * nb
-    if "occ" in samples[0]:
-        occ = np.concatenate([s["occ"] for s in samples], axis=1)
-        for k in range(occ.shape[0]):
+    if "extra" in samples[0]:
+        ex = np.concatenate([s["extra"] for s in samples], axis=1)
+        for k in range(ex.shape[0]):
             rows.append(ar)
             cols.append(np.full(n, ncol + k))
-            vals.append(occ[k])
-        ncol += occ.shape[0]
+            vals.append(ex[k])
+        ncol += ex.shape[0]
     a = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, ncol))
     return a, y
 
@@ -202,8 +237,14 @@ def _regulariser(nb: int, ncol: int) -> sparse.csr_matrix:
 
 
 def fit_table(samples: list[dict], nb: int = N_BINS) -> dict:
-    """Least-squares table (and shadow colours) from samples; returns the LUT file's arrays."""
+    """Weighted least-squares table, shadow colours, depth and halo terms from samples; returns the
+    LUT file's arrays (without the shadows' and the halo's geometry, which the caller adds)."""
     a, y = _design(samples, nb)
+    if "weight" in samples[0]:
+        # each sample's squared error counts weight times
+        w = np.sqrt(np.concatenate([s["weight"] for s in samples]).astype(np.float64))
+        a = sparse.diags(w) @ a
+        y = y * w[:, None]
     n, ncol = a.shape
     reg = _regulariser(nb, ncol)
     lam = SMOOTH_WEIGHT * n / (nb * nb)
@@ -220,15 +261,20 @@ def fit_table(samples: list[dict], nb: int = N_BINS) -> dict:
     table = sol[:3 * nb * nb].reshape(nb, nb, 3, 3)       # (row=ny, col=nx, basis, colour)
     out = {"table": np.ascontiguousarray(table.reshape(nb, nb, 9), dtype=np.float32)}
     if ncol > 3 * nb * nb:
-        out["shadow_rgb"] = sol[3 * nb * nb:].astype(np.float32)
+        ex = sol[3 * nb * nb:].astype(np.float32)
+        k = samples[0]["n_shadow"]
+        if k:
+            out["shadow_rgb"] = ex[:k]
+        out["depth_rgb"], out["halo_rgb"] = ex[k:k + 3], ex[k + 3:k + 6]
     return out
 
 
 def predict(table: dict, s: dict, nb: int = N_BINS) -> np.ndarray:
     """The table's colour change (n, 3) for one frame's samples (for cross-validation)."""
     a, _ = _design([s], nb)
-    coef = np.concatenate([table["table"].reshape(nb * nb * 3, 3),
-                           table.get("shadow_rgb", np.zeros((0, 3), np.float32))])
+    none = np.zeros((0, 3), np.float32)
+    coef = np.concatenate([table["table"].reshape(nb * nb * 3, 3), table.get("shadow_rgb", none),
+                           table.get("depth_rgb", none), table.get("halo_rgb", none)])
     return a @ coef.astype(np.float64)
 
 
@@ -372,6 +418,7 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
     table = fit_table(samples)
     if shadow is not None:
         table.update(shadow)
+    table.update(halo_spec())
     table["gain_dn"] = np.float32(p_best.shading.gain_dn)   # the DN scale the table was fitted at
 
     stem = out_path.stem

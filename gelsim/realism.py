@@ -20,6 +20,16 @@ computed on a 400x400 crop centred on the contact (Taxim's protocol), inside the
 disk of 1.5 contact radii (the *contact*), and as *skill*, ``1 - MSE(sim, real) /
 MSE(background, real)`` inside that disk: 0 for the background alone, 1 for a
 perfect prediction.
+
+*Small slopes* (issue #11: fabric texture tilts the gel by less than about 0.2): inside the
+annotated contact the gel takes the ball's shape, so its slope is known exactly, ``rho /
+sqrt(R^2 - rho^2)`` at ``rho`` from the centre. Over the contact's pixels whose slope is below
+``SMALL_SLOPE`` (the ball's flat top) the metric compares the colour change, simulated minus the
+renderer's background against real minus the pack's ``f0``, per channel: its RMS difference, and
+the *gain*, the colour change per unit of slope fitted as ``dc = a_frame + g . grad(depth)`` (an
+offset per frame, one 2-vector ``g`` per channel; ``|g|`` in DN per unit slope). Each channel
+responds to its own LED's direction, so channels are never averaged before the fit: three LEDs
+120 degrees apart cancel in a grey average.
 """
 from __future__ import annotations
 
@@ -43,6 +53,7 @@ R15_MM_PER_PX = 0.0295       # taxim's calib/gelsight/params.json
 R15_BALL_DIAMETER_MM = 4.0   # taxim's calibration ball
 CROP_PX = 400                # Taxim's paper compares 400x400 contact crops
 DISK_RADII = 1.5             # the contact disk reaches 1.5 contact radii: the gel's rim and shadows lie inside
+SMALL_SLOPE = 0.2            # issue #11: fabric texture's surface slopes are mostly below 0.2
 REQUIRED_KEYS = ("f0", "imgs", "touch_center", "touch_radius")
 FRAME_SETS = ("even", "odd", "all")
 
@@ -272,6 +283,72 @@ def summarize(per_frame: list[dict], base_frame: list[dict]) -> dict:
     return out
 
 
+def ball_slope(center_px, radius_px: float, shape: tuple[int, int], mm_per_px: float,
+               ball_diameter_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The gel's slope where it takes the ball's shape (inside the annotated contact):
+    ``(mask, gx, gy)``, bool ``(H, W)`` and float64 ``(n,)`` for the mask's pixels (row-major), the
+    gradient of the imprint depth (mm/mm): ``-(p - c) / sqrt(R^2 - rho^2)``, steepest at the rim."""
+    h, w = shape
+    r_ball = ball_diameter_mm / 2.0
+    m = disk_mask(center_px, min(radius_px, r_ball / mm_per_px), shape)
+    yy, xx = np.nonzero(m)
+    dx = (xx - center_px[0]) * mm_per_px
+    dy = (yy - center_px[1]) * mm_per_px
+    den = np.sqrt(np.maximum(r_ball * r_ball - dx * dx - dy * dy, 1e-12))
+    return m, -dx / den, -dy / den
+
+
+def small_slope_frame(sim_delta: np.ndarray, real_delta: np.ndarray, center_px, radius_px: float,
+                      mm_per_px: float, ball_diameter_mm: float, limit: float = SMALL_SLOPE) -> dict:
+    """One frame's part of the small-slope metric: the colour changes ``(H, W, 3)`` (simulated minus its
+    background, real minus its background) at the contact's pixels with slope below ``limit``.
+    Returns ``{"sim", "real"}`` float64 ``(n, 3)`` and ``{"gx", "gy"}`` ``(n,)`` (see :func:`ball_slope`)."""
+    m, gx, gy = ball_slope(center_px, radius_px, real_delta.shape[:2], mm_per_px, ball_diameter_mm)
+    keep = np.hypot(gx, gy) < limit
+    return {"sim": np.asarray(sim_delta, np.float64)[m][keep], "real": np.asarray(real_delta, np.float64)[m][keep],
+            "gx": gx[keep], "gy": gy[keep]}
+
+
+def _channel_gains(parts: list[dict], key: str) -> np.ndarray:
+    """``|g|`` per channel (DN per unit slope) of ``dc = a_frame + g . grad`` over the frames' pixels."""
+    xs, ys = [], []
+    for p in parts:
+        if len(p["gx"]) < 3:
+            continue    # a frame offset and two slopes need three pixels
+        g = np.stack([p["gx"], p["gy"]], axis=1)
+        xs.append(g - g.mean(axis=0))                   # the per-frame offset, eliminated
+        ys.append(p[key] - p[key].mean(axis=0))
+    if not xs:
+        return np.full(3, np.nan)
+    coef, *_ = np.linalg.lstsq(np.concatenate(xs), np.concatenate(ys), rcond=None)
+    return np.hypot(coef[0], coef[1])
+
+
+def small_slope_summary(parts: list[dict], limit: float = SMALL_SLOPE) -> dict:
+    """The small-slope metric over frames (:func:`small_slope_frame` results).
+
+    Returns ``pixels``; ``rms_dn`` and ``rms_dn_rgb`` (simulated vs real change); ``baseline_rms_dn``
+    (the background alone: the real change itself); ``gain_sim_dn``, ``gain_real_dn`` (DN per unit
+    slope, per channel) and ``gain_ratio`` (sim / real, per channel); ``slope_below``. Values that
+    cannot be measured (no pixel, fewer than 3 per frame, a zero real gain) are None."""
+    n = int(sum(len(p["gx"]) for p in parts))
+    out = {"slope_below": float(limit), "pixels": n}
+    if n == 0:      # no contact pixel that flat: nothing measured (None, which JSON can carry)
+        return {**out, "rms_dn": None, "rms_dn_rgb": [None] * 3, "baseline_rms_dn": None,
+                "gain_sim_dn": [None] * 3, "gain_real_dn": [None] * 3, "gain_ratio": [None] * 3}
+    e = np.concatenate([p["sim"] - p["real"] for p in parts])
+    real = np.concatenate([p["real"] for p in parts])
+    gs, gr = _channel_gains(parts, "sim"), _channel_gains(parts, "real")
+    def listed(a):
+        return [float(v) if np.isfinite(v) else None for v in a]
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = gs / gr
+    return {**out, "rms_dn": float(np.sqrt((e ** 2).mean())), "rms_dn_rgb": np.sqrt((e ** 2).mean(axis=0)).tolist(),
+            "baseline_rms_dn": float(np.sqrt((real ** 2).mean())), "gain_sim_dn": listed(gs),
+            "gain_real_dn": listed(gr), "gain_ratio": listed(ratio)}
+
+
 # --------------------------------------------------------------------------------------
 # Ball presses
 # --------------------------------------------------------------------------------------
@@ -308,7 +385,8 @@ def evaluate(profile, pack: DataPack, frames: str = "odd", *, ball_diameter_mm: 
     """Render each selected press with ``profile`` (noiseless: the expected frame) and score it.
 
     ``profile.image.mm_per_px`` sets the scale (pass a profile replaced with the pack's
-    scale). Returns :func:`summarize`'s dict plus ``"frames"`` (count) and
+    scale). Returns :func:`summarize`'s dict plus ``"small_slope"`` (:func:`small_slope_summary`),
+    ``"frames"`` (count) and
     ``"ms_per_frame"`` (render time, imprint included); with ``keep`` the frame
     index ``keep`` is also returned as ``"example": (real, sim)`` uint8 RGB.
     """
@@ -321,9 +399,11 @@ def evaluate(profile, pack: DataPack, frames: str = "odd", *, ball_diameter_mm: 
                           f"{pack.shape}; use a profile of the pack's size")
     idx = pack.select(frames)
     ren = Renderer(profile, backend)
-    sims, bases = [], []
+    sims, bases, small = [], [], []
     example = None
     t = 0.0
+    bg = ren.background_float()
+    f0 = pack.f0.astype(np.float32)
     try:
         for i in idx:
             t0 = time.perf_counter()
@@ -333,11 +413,14 @@ def evaluate(profile, pack: DataPack, frames: str = "odd", *, ball_diameter_mm: 
             real = pack.imgs[i]
             sims.append(frame_metrics(sim, real, pack.centers_px[i], pack.radii_px[i]))
             bases.append(frame_metrics(pack.f0, real, pack.centers_px[i], pack.radii_px[i]))
+            small.append(small_slope_frame(sim - bg, real - f0, pack.centers_px[i], pack.radii_px[i],
+                                           profile.image.mm_per_px, ball_diameter_mm))
             if keep is not None and i == keep:
                 example = (real, sim)
     finally:
         ren.close()
     out = summarize(sims, bases)
+    out["small_slope"] = small_slope_summary(small)
     out["frames"] = len(idx)
     out["ms_per_frame"] = 1000.0 * t / max(1, len(idx))
     if example is not None:

@@ -41,7 +41,9 @@ def register(sub) -> None:
             "and compare with the real frame: SSIM/PSNR/L1 on a 400x400 crop around the contact,\n"
             "PSNR/L1 inside the disk of 1.5 contact radii (SSIM on its bounding box), and skill =\n"
             "1 - MSE(sim)/MSE(background) in that disk. The background frame f0 as the prediction\n"
-            "is the baseline."),
+            "is the baseline. Small slopes: on the ball's flat top (true slope < 0.2, where fabric\n"
+            "texture lies), the RMS difference of the colour change and its gain per unit slope,\n"
+            "simulated over real, per channel."),
     )
     r.add_argument("--profile", default="gelsight-r15", metavar="NAME|PATH", help="sensor profile")
     r.add_argument("--datapack", default=None, metavar="PATH",
@@ -135,6 +137,23 @@ def run_realism(args) -> int:
     for name, r in (("simulated", rep), ("baseline", rep["baseline"])):
         print(f"{name:10s} {r['crop']['ssim']:9.4f} {r['crop']['psnr']:6.2f} {r['crop']['l1']:5.2f} | "
               f"{r['contact']['ssim']:12.4f} {r['contact']['psnr']:6.2f} {r['contact']['l1']:5.2f} | {r['skill']:.3f}")
+    print(small_slope_line(rep["small_slope"]))
     if rep.get("image"):
         print(f"wrote {rep['image']}")
     return 0
+
+
+def small_slope_line(ss: dict) -> str:
+    """The text line of the small-slope metric (gelsim.realism.small_slope_summary)."""
+    rgb = "RGB"
+    if ss["pixels"] == 0:
+        return f"small slopes (< {ss['slope_below']:g}): no contact pixel that flat"
+    def num(v, fmt):
+        return "n/a" if v is None else format(v, fmt)
+
+    per = ", ".join(f"{c} {num(v, '.1f')}" for c, v in zip(rgb, ss["rms_dn_rgb"]))
+    ratio = " ".join(f"{c} {num(v, '.2f')}" for c, v in zip(rgb, ss["gain_ratio"]))
+    real = "/".join(num(v, ".0f") for v in ss["gain_real_dn"])
+    return (f"small slopes (< {ss['slope_below']:g}, {ss['pixels']} contact px): RMS {ss['rms_dn']:.2f} DN "
+            f"({per}; background alone {ss['baseline_rms_dn']:.2f}); gain sim/real {ratio} "
+            f"(real {real} DN per unit slope)")
