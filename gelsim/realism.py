@@ -299,12 +299,14 @@ def ball_slope(center_px, radius_px: float, shape: tuple[int, int], mm_per_px: f
 
 
 def small_slope_frame(sim_delta: np.ndarray, real_delta: np.ndarray, center_px, radius_px: float,
-                      mm_per_px: float, ball_diameter_mm: float, limit: float = SMALL_SLOPE) -> dict:
+                      mm_per_px: float, ball_diameter_mm: float, limit: float = SMALL_SLOPE,
+                      lower: float = 0.0) -> dict:
     """One frame's part of the small-slope metric: the colour changes ``(H, W, 3)`` (simulated minus its
-    background, real minus its background) at the contact's pixels with slope below ``limit``.
+    background, real minus its background) at the contact's pixels with slope in ``[lower, limit)``.
     Returns ``{"sim", "real"}`` float64 ``(n, 3)`` and ``{"gx", "gy"}`` ``(n,)`` (see :func:`ball_slope`)."""
     m, gx, gy = ball_slope(center_px, radius_px, real_delta.shape[:2], mm_per_px, ball_diameter_mm)
-    keep = np.hypot(gx, gy) < limit
+    slope = np.hypot(gx, gy)
+    keep = (slope >= lower) & (slope < limit)
     return {"sim": np.asarray(sim_delta, np.float64)[m][keep], "real": np.asarray(real_delta, np.float64)[m][keep],
             "gx": gx[keep], "gy": gy[keep]}
 
