@@ -380,6 +380,7 @@ class LutShader:
         # [shading] gain_dn is the photometric scale of both backends: the table's DN were fitted
         # at the profile's gain_dn of the time (stored with it), so another gain scales them
         gain = profile.shading.gain_dn / t["gain_dn"] if "gain_dn" in t else 1.0
+        t = adjust_channels(t, profile.shading.channel_gain, profile.shading.channel_rotation_deg)
         self.table = t["table"] * np.float32(gain)
         self.nb = self.table.shape[0]
         # the exact lookup (shade_table): one 9-channel remap, channels colour-major (3 colour +
@@ -653,6 +654,53 @@ class LutShader:
         r = r.reshape(h, 3 * w, 3)                       # per (pixel, colour): the three basis values
         cv2.multiply(r, wts, r)
         return cv2.transform(r, _SUM3).reshape(h, w, 3)
+
+
+def _rotate_pair(a: np.ndarray, b: np.ndarray, deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """The 2-vector ``(a, b)`` (element-wise arrays) rotated by ``deg`` (counter-clockwise in x, y)."""
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return c * a - s * b, s * a + c * b
+
+
+def adjust_channels(t: dict, channel_gain, rotation_deg) -> dict:
+    """A table file's arrays for a unit whose LEDs differ from the calibrated one's: colour channel
+    ``c`` scaled by ``channel_gain[c]`` and its LED turned by ``rotation_deg[c]`` about the gel normal.
+
+    Turning an LED by ``delta`` turns its response over the normal: ``T'_c(n) = T_c(R(-delta) n)``
+    (the table resampled bilinearly; ``T(0) = 0`` stays), and with it the direction of its
+    spatial, depth and halo terms and of the shadow it casts (the shadow whose colour darkens
+    channel ``c`` most). Returns ``t`` itself when nothing changes."""
+    gains = np.asarray(channel_gain, np.float32)
+    rots = [float(r) for r in rotation_deg]
+    if np.all(gains == 1.0) and not any(rots):
+        return t
+    t = dict(t)
+    table = t["table"].copy()
+    nb = table.shape[0]
+    half = (nb - 1) / 2.0
+    jj, ii = np.meshgrid(np.arange(nb, dtype=np.float32), np.arange(nb, dtype=np.float32))
+    nx, ny = (jj - half) / half, (ii - half) / half
+    for c in range(3):
+        if rots[c]:
+            sx, sy = _rotate_pair(nx, ny, -rots[c])
+            mx, my = (half + half * sx).astype(np.float32), (half + half * sy).astype(np.float32)
+            for b in range(3):
+                table[..., 3 * b + c] = cv2.remap(np.ascontiguousarray(table[..., 3 * b + c]), mx, my,
+                                                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            table[..., 3 + c], table[..., 6 + c] = _rotate_pair(table[..., 3 + c], table[..., 6 + c], rots[c])
+        table[..., c::3] *= gains[c]
+    t["table"] = table
+    if "shadow_rgb" in t:
+        own = np.argmin(t["shadow_rgb"], axis=1)                # the channel each shadow darkens most
+        t["shadow_dirs_deg"] = (t["shadow_dirs_deg"] + np.asarray([rots[c] for c in own], np.float32)).astype(np.float32)
+        t["shadow_rgb"] = t["shadow_rgb"] * gains[None, :]
+    for key, pair in (("depth_rgb", (1, 2)), ("halo_rgb", (0, 1))):
+        if key in t:
+            m = t[key].copy()
+            for c in range(3):
+                m[pair[0], c], m[pair[1], c] = _rotate_pair(m[pair[0], c], m[pair[1], c], rots[c])
+            t[key] = m * gains[None, :]
+    return t
 
 
 def _union(a, b):

@@ -120,6 +120,60 @@ def test_calibrate_bad_input(tmp_path, fitted):
         calibrate(few, load_profile("vitac"), tmp_path / "x.toml", mm_per_px=truth.image.mm_per_px)
 
 
+def _write(tmp_path, data, name="p.npz"):
+    np.savez(tmp_path / name, **data)
+    return str(tmp_path / name)
+
+
+@pytest.mark.parametrize("change, args, match", [
+    (lambda d: d.update(touch_center=np.vstack([d["touch_center"][:-1], [[500.0, 20.0]]])), [], "outside"),
+    (lambda d: None, ["--ball-diameter-mm", "30"], "larger than the"),
+    (lambda d: None, ["--ball-diameter-mm", "1"], "exceeds the"),
+    (lambda d: d.update(imgs=d["imgs"][:5], touch_center=d["touch_center"][:5], touch_radius=d["touch_radius"][:5]),
+     [], "at least 4"),
+    (lambda d: d.update(imgs=d["imgs"][:6], touch_center=d["touch_center"][:6], touch_radius=d["touch_radius"][:6]),
+     ["--frames", "odd"], "at least 4"),
+    (lambda d: d.pop("f0"), [], "lacks f0"),
+    (lambda d: d.update(touch_radius=d["touch_radius"][:, None]), [], "touch_radius has shape"),
+])
+def test_calibrate_refuses_bad_packs_in_one_line_and_writes_nothing(fitted, tmp_path, capsys, change, args, match):
+    truth, pack, rep, d = fitted
+    data = dict(np.load(d / "pack.npz"))
+    change(data)
+    src = tmp_path / "src"
+    src.mkdir()
+    out = tmp_path / "out"
+    out.mkdir()
+    code = main(["calibrate", _write(src, data), "--out", str(out / "p.toml"),
+                 "--mm-per-px", str(truth.image.mm_per_px), *args])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and match in err, err
+    assert list(out.iterdir()) == []
+
+
+def test_realism_refuses_a_profile_of_another_size(fitted, capsys):
+    truth, pack, rep, d = fitted
+    assert main(["realism", "--profile", "gelsight-r15", "--datapack", str(d / "pack.npz")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "640x480" in err and "160x120" in err
+
+
+def test_cli_calibrate_reports_its_held_out_score(fitted, tmp_path, capsys):
+    """Fitted on the even frames, the command scores the odd ones itself (JSON and text)."""
+    truth, pack, rep, d = fitted
+    args = ["calibrate", str(d / "pack.npz"), "--out", str(tmp_path / "c.toml"), "--mm-per-px",
+            str(truth.image.mm_per_px), "--ball-diameter-mm", str(BALL_MM), "--base-profile", "vitac"]
+    assert main(args + ["--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    held = doc["heldout"]
+    assert held["frame_set"] == "odd" and held["frames"] == 6
+    assert held["skill"] > 0.9 and held["baseline"]["skill"] == 0.0
+    again = evaluate(load_profile(tmp_path / "c.toml"), pack, "odd", ball_diameter_mm=BALL_MM)
+    assert held["skill"] == pytest.approx(again["skill"])
+    assert main(args[:3] + [str(tmp_path / "c2.toml")] + args[4:] + ["--frames", "all"]) == 0
+    assert "held-out score: none" in capsys.readouterr().out
+
+
 def test_cli_calibrate_and_realism(fitted, tmp_path, capsys):
     truth, pack, rep, d = fitted
     bad = dict(np.load(d / "pack.npz"))
