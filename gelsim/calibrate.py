@@ -5,8 +5,10 @@ What is fitted, from the selected frames only:
 * background: the no-contact frame ``f0``, smoothed and stored at half resolution
   as a PNG beside the profile (``[background] image``);
 * shading: the lookup table of :mod:`gelsim.optics.lut` (colour change over the
-  surface normal with a first-order spatial term, plus a shadow colour per in-plane
-  direction), by regularised linear least squares on the pixels near each contact;
+  surface normal with a first-order spatial term, plus a shadow colour per LED, the
+  depth term and the halo term), by regularised, weighted linear least squares on the
+  pixels near each contact: pixels outside the contact weigh less (``OUTSIDE_WEIGHT``),
+  since there the imprint model's normals are approximate;
 * gel response: the gel thickness (sets the pyramid spread of the imprint around the
   ball) and the membrane smoothing, and the shadows' grazing elevation, chosen by
   two-fold cross-validation among the selected frames (the table is refitted for
@@ -31,16 +33,35 @@ from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
 from .errors import GelsimError
-from .optics.lut import normal_xy, shadow_factors
+from .optics.lut import coarse_features, normal_xy, shadow_factors
 from .params import dump_toml, to_dict
-from .realism import DISK_RADII, DataPack, ball_depth, disk_mask
+from .realism import DISK_RADII, DataPack, ball_depth, check_geometry, disk_mask
 
 # Fitting constants (why each has its value):
 N_BINS = 41             # normal bins over -1..1: 0.05 per bin, finer than the ball's normal changes per px
 FIT_RADII = 1.75        # fit inside 1.75 contact radii: the scored disk (1.5) plus the rim's outer edge
 FIT_STRIDE = 2          # every 2nd pixel each way: neighbours are nearly the same sample (the image is smooth)
-SMOOTH_WEIGHT = 3.0     # second-difference penalty between bins, per unit of sample weight; tuned on even frames
+SMOOTH_WEIGHT = 3.0     # second-difference penalty between bins, per unit of sample weight: the first guess;
+                        # the fit then picks the weight from DEFAULT_GRID["smooth_weight"] by cross-validation
 RIDGE_WEIGHT = 1e-3     # keeps bins without samples near zero
+# Pixels outside the contact weigh 0.3 in the table's fit. There the normals come from the imprint
+# model's spread, which ends at about 1.8 contact radii while real presses change the image out to
+# 2.5 (docs/realism.md): the real gel is still sloped where the model's is flat. At near-flat normals
+# these pixels outnumber the ball's own flat top (exact normals) about 100:1, and taught the table
+# a step at flat: on the R1.5's held-out frames the response to slopes below 0.1 was 2.1-3.1x the
+# real one. Two-fold cross-validation on the R1.5's even frames, skill / RMS error at slopes < 0.2:
+# before (no depth or halo term, weight 1) 0.927 / 7.2 DN; with both terms, outside weight
+# 1 / 0.3 / 0.1: 0.931 / 5.6, 0.930 / 4.9, 0.926 / 4.5 DN. 0.3 keeps the skill and removes most
+# of the step; lower weights start to cost skill and leave blue with a dead zone near flat.
+OUTSIDE_WEIGHT = 0.3
+# The halo term (gelsim.optics.lut): widths chosen by the same cross-validation (1 and 2 mm, and the
+# outside weight, were compared): 1 mm reaches about 3 mm around a press, the real halo's extent; the
+# base blur of 0.25 mm removes relief finer than about 1 mm (a fabric's weave), so that the halo
+# follows the press's shape and not its texture; the gate, 0.02 mm of spill, is a fiftieth of the
+# R1.5's presses (about 1 mm deep), so the halo switches on within a few pixels of the spill's edge.
+HALO_SIGMA_MM = 1.0
+HALO_BASE_MM = 0.25
+HALO_GATE_MM = 0.02
 SHADOW_SAT_MM = 0.1     # occlusion at which a shadow is half dark: a tenth of the ball's 1 mm presses, so a
                         # shadow deepens over its first third and fades out over its last tenth
 BG_SCALE = 2            # background stored at 1/2 resolution: keeps 2 px detail, is not the raw frame
@@ -53,6 +74,9 @@ DEFAULT_GRID = {
     "shadow_tan": (0.0, 0.5, 0.7, 1.0),
     # penumbra (Gaussian sigma, mm): the LEDs' extent seen from the gel and the membrane's scatter
     "shadow_soft_mm": (0.1, 0.2),
+    # the table's smoothness penalty: a sensor whose colour turns within a few hundredths of slope
+    # (the GelSight Mini) needs less than one with a gentle response (the R1.5); chosen last
+    "smooth_weight": (0.1, 0.3, 1.0, 3.0),
 }
 
 
@@ -115,7 +139,9 @@ def fit_noise(pack: DataPack, idx: list[int]) -> tuple[float, float]:
 # Shading table
 # --------------------------------------------------------------------------------------
 def _frame_samples(profile, pack: DataPack, i: int, bg: np.ndarray, ball_mm: float, shadow: dict | None):
-    """Features and targets of frame ``i``: dict of nx, ny, xn, yn, occ (K, n) and target (n, 3).
+    """Features and targets of frame ``i``: dict of nx, ny, xn, yn, ``extra`` (K + 6, n: the K shadow
+    factors, the depth term's basis, the halo's features), ``n_shadow`` (K), target (n, 3) and the
+    samples' fit ``weight`` (n,) (1 inside the annotated contact, OUTSIDE_WEIGHT outside).
 
     ``shadow``: None, or the shadow terms' ``shadow_dirs_deg``, ``shadow_tan``, ``shadow_sat_mm``
     and ``shadow_soft_mm`` (the keys of the table file)."""
@@ -131,13 +157,16 @@ def _frame_samples(profile, pack: DataPack, i: int, bg: np.ndarray, ball_mm: flo
     yy, xx = np.mgrid[y0:y1:FIT_STRIDE, x0:x1:FIT_STRIDE]
     keep = (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= rr * rr
     yy, xx = yy[keep], xx[keep]
+    inside = (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= r * r
     fw, fh = profile.field_mm
     out = {
         "nx": nx[yy, xx], "ny": ny[yy, xx],
         "xn": ((xx - (w - 1) / 2.0) * mm / (fw / 2.0)).astype(np.float32),
         "yn": ((yy - (h - 1) / 2.0) * mm / (fh / 2.0)).astype(np.float32),
         "target": pack.imgs[i][yy, xx].astype(np.float32) - bg[yy, xx],
+        "weight": np.where(inside, 1.0, OUTSIDE_WEIGHT).astype(np.float32),
     }
+    extra = []
     if shadow is not None:
         f, to_full = shadow_factors(depth, mm, shadow["shadow_dirs_deg"], shadow["shadow_tan"],
                                     shadow["shadow_sat_mm"], shadow["shadow_soft_mm"])
@@ -145,13 +174,23 @@ def _frame_samples(profile, pack: DataPack, i: int, bg: np.ndarray, ball_mm: flo
         full = np.stack([cv2.warpAffine(np.ascontiguousarray(f[..., k]), to_full, (w, h),
                                         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                         borderMode=cv2.BORDER_REPLICATE) for k in range(f.shape[-1])], axis=-1)
-        out["occ"] = full[yy, xx].T
+        extra.append(full[yy, xx].T)
+    out["n_shadow"] = len(extra[0]) if extra else 0
+    halo = {k: float(v) for k, v in halo_spec().items()}
+    extra.append(coarse_features(depth, mm, profile.field_mm, True, halo)[yy, xx].T)
+    out["extra"] = np.concatenate(extra).astype(np.float32)
     del roi
     return out
 
 
+def halo_spec() -> dict:
+    """The halo term's widths (table-file keys)."""
+    return {"halo_sigma_mm": np.float32(HALO_SIGMA_MM), "halo_base_mm": np.float32(HALO_BASE_MM),
+            "halo_gate_mm": np.float32(HALO_GATE_MM)}
+
+
 def _design(samples: list[dict], nb: int) -> tuple[sparse.csr_matrix, np.ndarray]:
-    """Sparse design matrix (n, 3 nb^2 [+ K]) and targets (n, 3) of the table model."""
+    """Sparse design matrix (n, 3 nb^2 + K + 6) and targets (n, 3) of the table model (unweighted)."""
     nx = np.concatenate([s["nx"] for s in samples])
     ny = np.concatenate([s["ny"] for s in samples])
     xn = np.concatenate([s["xn"] for s in samples])
@@ -173,13 +212,13 @@ def _design(samples: list[dict], nb: int) -> tuple[sparse.csr_matrix, np.ndarray
             cols.append(b * 3 + k)
             vals.append(wgt * bv)
     ncol = 3 * nb * nb
-    if "occ" in samples[0]:
-        occ = np.concatenate([s["occ"] for s in samples], axis=1)
-        for k in range(occ.shape[0]):
+    if "extra" in samples[0]:
+        ex = np.concatenate([s["extra"] for s in samples], axis=1)
+        for k in range(ex.shape[0]):
             rows.append(ar)
             cols.append(np.full(n, ncol + k))
-            vals.append(occ[k])
-        ncol += occ.shape[0]
+            vals.append(ex[k])
+        ncol += ex.shape[0]
     a = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, ncol))
     return a, y
 
@@ -201,12 +240,18 @@ def _regulariser(nb: int, ncol: int) -> sparse.csr_matrix:
     return sparse.csr_matrix((vals, (rows, cols)), shape=(r, ncol))
 
 
-def fit_table(samples: list[dict], nb: int = N_BINS) -> dict:
-    """Least-squares table (and shadow colours) from samples; returns the LUT file's arrays."""
+def fit_table(samples: list[dict], nb: int = N_BINS, smooth: float = SMOOTH_WEIGHT) -> dict:
+    """Weighted least-squares table, shadow colours, depth and halo terms from samples; returns the
+    LUT file's arrays (without the shadows' and the halo's geometry, which the caller adds)."""
     a, y = _design(samples, nb)
+    if "weight" in samples[0]:
+        # each sample's squared error counts weight times
+        w = np.sqrt(np.concatenate([s["weight"] for s in samples]).astype(np.float64))
+        a = sparse.diags(w) @ a
+        y = y * w[:, None]
     n, ncol = a.shape
     reg = _regulariser(nb, ncol)
-    lam = SMOOTH_WEIGHT * n / (nb * nb)
+    lam = smooth * n / (nb * nb)
     m = (a.T @ a + lam * (reg.T @ reg) + RIDGE_WEIGHT * lam * sparse.identity(ncol)).tocsc()
     # T(0, 0) = 0: a flat gel shows the background, so pin the centre bin's three terms
     c = ((nb // 2) * nb + nb // 2) * 3
@@ -220,15 +265,20 @@ def fit_table(samples: list[dict], nb: int = N_BINS) -> dict:
     table = sol[:3 * nb * nb].reshape(nb, nb, 3, 3)       # (row=ny, col=nx, basis, colour)
     out = {"table": np.ascontiguousarray(table.reshape(nb, nb, 9), dtype=np.float32)}
     if ncol > 3 * nb * nb:
-        out["shadow_rgb"] = sol[3 * nb * nb:].astype(np.float32)
+        ex = sol[3 * nb * nb:].astype(np.float32)
+        k = samples[0]["n_shadow"]
+        if k:
+            out["shadow_rgb"] = ex[:k]
+        out["depth_rgb"], out["halo_rgb"] = ex[k:k + 3], ex[k + 3:k + 6]
     return out
 
 
 def predict(table: dict, s: dict, nb: int = N_BINS) -> np.ndarray:
     """The table's colour change (n, 3) for one frame's samples (for cross-validation)."""
     a, _ = _design([s], nb)
-    coef = np.concatenate([table["table"].reshape(nb * nb * 3, 3),
-                           table.get("shadow_rgb", np.zeros((0, 3), np.float32))])
+    none = np.zeros((0, 3), np.float32)
+    coef = np.concatenate([table["table"].reshape(nb * nb * 3, 3), table.get("shadow_rgb", none),
+                           table.get("depth_rgb", none), table.get("halo_rgb", none)])
     return a @ coef.astype(np.float64)
 
 
@@ -279,8 +329,17 @@ def shadow_spec(dirs_deg, tan_e: float, soft_mm: float) -> dict | None:
             "shadow_sat_mm": np.float32(SHADOW_SAT_MM), "shadow_soft_mm": np.float32(soft_mm)}
 
 
-def _cv_mse(profile, pack, idx, bg, ball_mm, shadow: dict | None) -> float:
+def _cv_mse(profile, pack, idx, bg, ball_mm, shadow: dict | None, smooth: float = SMOOTH_WEIGHT) -> float:
     """Two-fold cross-validated MSE of the table model inside the scored disks of ``idx``."""
+    return _cv_errors(profile, pack, idx, bg, ball_mm, shadow, smooth)[0]
+
+
+def _cv_errors(profile, pack, idx, bg, ball_mm, shadow: dict | None,
+               smooth: float = SMOOTH_WEIGHT) -> tuple[float, float]:
+    """Two-fold cross-validated MSEs of the table model: inside the scored disks of ``idx``, and on
+    the balls' flat tops (true slope below gelsim.realism.SMALL_SLOPE, where fabric texture lives)."""
+    from .realism import SMALL_SLOPE
+
     samples = [_frame_samples(profile, pack, i, bg, ball_mm, shadow) for i in idx]
     # score only inside DISK_RADII (the metric's disk) although the fit reaches FIT_RADII
     for s, i in zip(samples, idx):
@@ -288,21 +347,64 @@ def _cv_mse(profile, pack, idx, bg, ball_mm, shadow: dict | None) -> float:
         w, h = profile.field_mm
         px = (s["xn"] * (w / 2.0) / profile.image.mm_per_px + (pack.shape[1] - 1) / 2.0)
         py = (s["yn"] * (h / 2.0) / profile.image.mm_per_px + (pack.shape[0] - 1) / 2.0)
-        s["scored"] = (px - c[0]) ** 2 + (py - c[1]) ** 2 <= (DISK_RADII * r) ** 2
+        rho2 = (px - c[0]) ** 2 + (py - c[1]) ** 2
+        s["scored"] = rho2 <= (DISK_RADII * r) ** 2
+        # the ball's slope rho / sqrt(R^2 - rho^2) < SMALL_SLOPE inside the contact
+        big_r = ball_mm / 2.0 / profile.image.mm_per_px
+        s["flat"] = (rho2 <= r * r) & (rho2 < (SMALL_SLOPE ** 2 / (1.0 + SMALL_SLOPE ** 2)) * big_r * big_r)
     folds = (samples[0::2], samples[1::2])
-    err, cnt = 0.0, 0
+    err, cnt, err_f, cnt_f = 0.0, 0, 0.0, 0
     for fit_on, test_on in ((folds[0], folds[1]), (folds[1], folds[0])):
-        t = fit_table(fit_on)
+        t = fit_table(fit_on, smooth=smooth)
         for s in test_on:
             e = predict(t, s) - s["target"]
             err += float((e[s["scored"]] ** 2).sum())
             cnt += int(s["scored"].sum()) * 3
-    return err / max(cnt, 1)
+            err_f += float((e[s["flat"]] ** 2).sum())
+            cnt_f += int(s["flat"].sum()) * 3
+    return err / max(cnt, 1), err_f / max(cnt_f, 1)
+
+
+# A calibration needs this many ball presses to fit (the two cross-validation folds need two each)
+# and, to report a held-out score, this many left over.
+MIN_FIT_FRAMES = 4
+MIN_HELDOUT_FRAMES = 2
+HELDOUT = {"even": "odd", "odd": "even", "all": None}
+
+
+def check_pack(pack: DataPack, frames: str, mm_per_px: float, ball_diameter_mm: float) -> tuple[list, list]:
+    """The fit and held-out frame indices of ``pack`` for ``frames``, after checking that the pack is
+    large and consistent enough (see :func:`gelsim.realism.check_geometry`)."""
+    check_geometry(pack, mm_per_px, ball_diameter_mm, Path(pack.source).name or "data pack")
+    idx = pack.select(frames)
+    if len(idx) < MIN_FIT_FRAMES:
+        raise GelsimError(f"only {len(idx)} {frames} frames in the pack; calibration needs at least {MIN_FIT_FRAMES} "
+                          f"ball presses to fit (and {MIN_HELDOUT_FRAMES} more to score), so give a larger pack")
+    held = pack.select(HELDOUT[frames]) if HELDOUT[frames] else []
+    if HELDOUT[frames] and len(held) < MIN_HELDOUT_FRAMES:
+        raise GelsimError(f"only {len(held)} {HELDOUT[frames]} frames are left to score the fit; give a pack with at "
+                          f"least {MIN_FIT_FRAMES + MIN_HELDOUT_FRAMES} presses, or --frames all (no held-out score)")
+    return idx, held
+
+
+def heldout_score(profile_path: str | Path, pack: DataPack, frames: str, ball_diameter_mm: float) -> dict | None:
+    """The written profile scored on the frames it was not fitted on (:func:`gelsim.realism.evaluate`):
+    None for ``frames == "all"``."""
+    from .realism import evaluate
+    from .sensor import load_profile
+
+    other = HELDOUT[frames]
+    if other is None:
+        return None
+    res = evaluate(load_profile(profile_path), pack, other, ball_diameter_mm=ball_diameter_mm)
+    res.pop("example", None)
+    res["frame_set"] = other
+    return res
 
 
 def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str = "even",
               mm_per_px: float = 0.0295, ball_diameter_mm: float = 4.0, grid: dict | None = None,
-              name: str | None = None, note: str = "", log=None) -> dict:
+              name: str | None = None, description: str | None = None, note: str = "", log=None) -> dict:
     """Fit a profile to ``pack``'s selected frames and write it to ``out_path`` (TOML), with its
     background PNG and shading table ``.npz`` beside it (same stem).
 
@@ -316,15 +418,13 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
         raise GelsimError(f"--out {out_path} must end in .toml; the table and background go beside it")
     if not out_path.parent.is_dir():
         raise GelsimError(f"folder {out_path.parent} does not exist; create it or choose another --out")
-    if not (mm_per_px > 0 and math.isfinite(mm_per_px)) or not (ball_diameter_mm > 0 and math.isfinite(ball_diameter_mm)):
-        raise GelsimError("--mm-per-px and --ball-diameter-mm must be positive numbers")
-    idx = pack.select(frames)
-    if len(idx) < 4:
-        raise GelsimError(f"only {len(idx)} frames selected; calibration needs at least 4 ball presses")
+    idx, _ = check_pack(pack, frames, mm_per_px, ball_diameter_mm)
     h, w = pack.shape
     log = log or (lambda msg: None)
+    desc = description or (f"{name or out_path.stem}: {w}x{h} at {mm_per_px:g} mm/px, fitted by `gelsim calibrate` "
+                           f"on {Path(pack.source).name or 'a data pack'}")
     prof = dataclasses.replace(
-        base_profile, name=name or out_path.stem,
+        base_profile, name=name or out_path.stem, description=desc,
         image=dataclasses.replace(base_profile.image, width_px=w, height_px=h, mm_per_px=mm_per_px),
         markers=dataclasses.replace(base_profile.markers, enabled=False),
         camera=dataclasses.replace(base_profile.camera, blur_sigma_px=0.0, vignetting=0.0))
@@ -350,7 +450,8 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
                        membrane_smoothing_mm=float(best["membrane_smoothing_mm"]))
     # One shadow term per LED, cast away from it: the LEDs' azimuths come from the table fitted
     # without shadows (the shading's slope near flat points to each channel's LED).
-    plain = fit_table([_frame_samples(p_best, pack, i, bg, ball_diameter_mm, None) for i in idx])
+    plain_samples = [_frame_samples(p_best, pack, i, bg, ball_diameter_mm, None) for i in idx]
+    plain = fit_table(plain_samples)
     lights = fit_lights(plain, p_best.lights[0])
     led_az = [lt.azimuth_deg for lt in lights]
     log("LED azimuths (deg): " + ", ".join(f"{a:.1f}" for a in led_az))
@@ -364,14 +465,29 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
         if mse < best["cv_mse"]:
             best = trials[-1]
     shadow = shadow_spec(led_az, float(best["shadow_tan"]), float(best["shadow_soft_mm"]))
+    # The smoothness trades the disk's error against the flat tops' (the response to small slopes,
+    # issue #11): chosen by their sum, both DN^2 per pixel and channel.
+    best = dict(best, smooth_weight=None, cv_flat_mse=None)
+    choice = None
+    for sw in grid["smooth_weight"]:
+        mse, flat = _cv_errors(p_best, pack, idx, bg, ball_diameter_mm, shadow, smooth=float(sw))
+        trials.append(dict(best, smooth_weight=sw, cv_mse=mse, cv_flat_mse=flat))
+        log(f"table smoothness {sw}: cv mse {mse:.2f}, on the flat tops {flat:.2f}")
+        if choice is None or mse + flat < choice["cv_mse"] + choice["cv_flat_mse"]:
+            choice = trials[-1]
+    best = choice
+    smooth = float(best["smooth_weight"])
     # the LEDs' elevation is the shadows' grazing slope (the template's when there are no shadows),
     # and their intensity the table's response near flat, so pyrender shades as the table does
     elev = math.degrees(math.atan(float(best["shadow_tan"]))) if shadow is not None else None
+    if smooth != SMOOTH_WEIGHT:
+        plain = fit_table(plain_samples, smooth=smooth)
     lights = fit_lights(plain, p_best.lights[0], gain_dn=p_best.shading.gain_dn, elevation_deg=elev)
     samples = [_frame_samples(p_best, pack, i, bg, ball_diameter_mm, shadow) for i in idx]
-    table = fit_table(samples)
+    table = fit_table(samples, smooth=smooth)
     if shadow is not None:
         table.update(shadow)
+    table.update(halo_spec())
     table["gain_dn"] = np.float32(p_best.shading.gain_dn)   # the DN scale the table was fitted at
 
     stem = out_path.stem
@@ -388,7 +504,7 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
                                        rgb_dn=tuple(float(v) for v in pack.f0.reshape(-1, 3).mean(0))),
         noise=dataclasses.replace(p_best.noise, read_sigma_dn=round(read, 3), shot_gain=round(shot, 5)),
         source="")
-    data = to_dict(fitted)
+    data = {k: v for k, v in to_dict(fitted).items() if v is not None}
     data.pop("source", None)
     header = (f"Fitted by `gelsim calibrate` on {len(idx)} {frames} frames of {Path(pack.source).name}\n"
               f"(mm_per_px {mm_per_px}, ball {ball_diameter_mm} mm). Fitted: background image, shading table,\n"

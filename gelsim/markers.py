@@ -62,7 +62,8 @@ def marker_grid(profile, *, seed: int = 0) -> np.ndarray:
     Square layout: rows and columns ``pitch_mm`` apart; hex: rows ``pitch * sqrt(3) / 2``
     apart, every other row shifted by half a pitch. The grid is centred on the image and
     keeps markers that lie wholly inside it (before jitter), in row-major order; jitter is
-    Gaussian with sigma ``jitter_mm``.
+    Gaussian with sigma ``jitter_mm``. With ``missing_fraction`` > 0 that fraction of them
+    (rounded) is left out, chosen by ``seed``; the rest keep their order.
     """
     return _marker_grid(profile.markers, profile.image, int(seed)).copy()
 
@@ -96,6 +97,11 @@ def _marker_grid(spec, image, seed: int) -> np.ndarray:
     if spec.jitter_mm > 0:
         rng = np.random.default_rng(seed)
         pts = pts + rng.normal(0.0, spec.jitter_mm / mmpp, pts.shape)
+    n_missing = int(round(spec.missing_fraction * len(pts)))
+    if n_missing:
+        # a stream of its own, so that the jitter of the markers kept does not depend on it
+        gone = np.random.default_rng([seed, 0x6D15]).choice(len(pts), n_missing, replace=False)
+        pts = np.delete(pts, gone, axis=0)
     return pts.astype(np.float32)
 
 

@@ -20,6 +20,16 @@ computed on a 400x400 crop centred on the contact (Taxim's protocol), inside the
 disk of 1.5 contact radii (the *contact*), and as *skill*, ``1 - MSE(sim, real) /
 MSE(background, real)`` inside that disk: 0 for the background alone, 1 for a
 perfect prediction.
+
+*Small slopes* (issue #11: fabric texture tilts the gel by less than about 0.2): inside the
+annotated contact the gel takes the ball's shape, so its slope is known exactly, ``rho /
+sqrt(R^2 - rho^2)`` at ``rho`` from the centre. Over the contact's pixels whose slope is below
+``SMALL_SLOPE`` (the ball's flat top) the metric compares the colour change, simulated minus the
+renderer's background against real minus the pack's ``f0``, per channel: its RMS difference, and
+the *gain*, the colour change per unit of slope fitted as ``dc = a_frame + g . grad(depth)`` (an
+offset per frame, one 2-vector ``g`` per channel; ``|g|`` in DN per unit slope). Each channel
+responds to its own LED's direction, so channels are never averaged before the fit: three LEDs
+120 degrees apart cancel in a grey average.
 """
 from __future__ import annotations
 
@@ -36,13 +46,19 @@ import cv2
 import numpy as np
 
 from .errors import GelsimError
+from .params import param
 
 TAXIM_VERSION = "1.4.1"
 TAXIM_PACK_MEMBER = "taxim/calib/gelsight/dataPack.npz"
+# taxim 1.4.1's real ball presses: name -> (member of the wheel, file in the cache). "r15": GelSight
+# R1.5, f0 + 48 presses; "mini": GelSight Mini, f0 + 24 presses (both 640x480).
+TAXIM_PACKS = {"r15": (TAXIM_PACK_MEMBER, "dataPack.npz"),
+               "mini": ("taxim/calib/gelsight_mini/dataPack.npz", "gelsight_mini/dataPack.npz")}
 R15_MM_PER_PX = 0.0295       # taxim's calib/gelsight/params.json
 R15_BALL_DIAMETER_MM = 4.0   # taxim's calibration ball
 CROP_PX = 400                # Taxim's paper compares 400x400 contact crops
 DISK_RADII = 1.5             # the contact disk reaches 1.5 contact radii: the gel's rim and shadows lie inside
+SMALL_SLOPE = 0.2            # issue #11: fabric texture's surface slopes are mostly below 0.2
 REQUIRED_KEYS = ("f0", "imgs", "touch_center", "touch_radius")
 FRAME_SETS = ("even", "odd", "all")
 
@@ -101,6 +117,12 @@ def check_datapack(data: dict, where: str = "data pack", channel_order: str = "b
         raise GelsimError(f"{where}: touch_radius has shape {r.shape}; give ({n},) radii in px, one per frame")
     if not (np.all(np.isfinite(c)) and np.all(np.isfinite(r)) and np.all(r > 0)):
         raise GelsimError(f"{where}: touch_center/touch_radius hold non-finite or non-positive values; fix them")
+    h, w = f0.shape[:2]
+    outside = np.flatnonzero((c[:, 0] < 0) | (c[:, 0] > w - 1) | (c[:, 1] < 0) | (c[:, 1] > h - 1))
+    if outside.size:
+        i = int(outside[0])
+        raise GelsimError(f"{where}: frame {i}'s contact centre ({c[i, 0]:g}, {c[i, 1]:g}) px lies outside the "
+                          f"{w}x{h} image; give centres as (x, y) = (column, row) inside it")
     for name, a in (("f0", f0), ("imgs", imgs)):
         if a.dtype != np.uint8:
             if not np.issubdtype(a.dtype, np.number) or a.min() < 0 or a.max() > 255:
@@ -134,16 +156,30 @@ def cache_dir() -> Path:
 
 def r15_pack_path() -> Path:
     """Path of the cached R1.5 data pack (it may not exist yet; see :func:`fetch_r15_pack`)."""
-    return cache_dir() / f"taxim-{TAXIM_VERSION}" / "dataPack.npz"
+    return taxim_pack_path("r15")
+
+
+def taxim_pack_path(name: str) -> Path:
+    """Path of a cached taxim data pack (``"r15"`` or ``"mini"``; it may not exist yet)."""
+    if name not in TAXIM_PACKS:
+        raise GelsimError(f"unknown taxim data pack {name!r}; choose one of {', '.join(TAXIM_PACKS)}")
+    return cache_dir() / f"taxim-{TAXIM_VERSION}" / TAXIM_PACKS[name][1]
 
 
 def fetch_r15_pack() -> Path:
-    """The GelSight R1.5 data pack from taxim's wheel, downloaded once into the cache.
+    """The GelSight R1.5 data pack from taxim's wheel (:func:`fetch_taxim_pack`)."""
+    return fetch_taxim_pack("r15")
 
-    Runs ``pip download taxim==1.4.1 --no-deps`` (a 27 MB wheel) and extracts only
+
+def fetch_taxim_pack(name: str = "r15") -> Path:
+    """A data pack from taxim's wheel (``"r15"``: GelSight R1.5; ``"mini"``: GelSight Mini),
+    downloaded once into the cache.
+
+    Runs ``pip download taxim==1.4.1 --no-deps`` (a 27 MB wheel) and extracts only the pack's
     ``dataPack.npz``; taxim's code is never installed or imported.
     """
-    out = r15_pack_path()
+    out = taxim_pack_path(name)
+    member = TAXIM_PACKS[name][0]
     if out.is_file():
         return out
     wheel_dir = cache_dir() / "wheels"
@@ -160,9 +196,9 @@ def fetch_r15_pack() -> Path:
                               f"give --datapack PATH to a local dataPack.npz")
     try:
         with zipfile.ZipFile(wheels[-1]) as z:
-            blob = z.read(TAXIM_PACK_MEMBER)
+            blob = z.read(member)
     except (KeyError, zipfile.BadZipFile) as e:
-        raise GelsimError(f"{wheels[-1]} holds no readable {TAXIM_PACK_MEMBER} ({e}); delete it and retry") from None
+        raise GelsimError(f"{wheels[-1]} holds no readable {member} ({e}); delete it and retry") from None
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".tmp")
     tmp.write_bytes(blob)
@@ -172,8 +208,70 @@ def fetch_r15_pack() -> Path:
 
 
 def resolve_datapack(path: str | Path | None) -> Path:
-    """``path`` if given, else the cached (fetched on demand) R1.5 pack."""
-    return Path(path) if path else fetch_r15_pack()
+    """``path`` if given (``"r15"`` or ``"mini"``: that taxim pack, fetched on demand), else the R1.5 pack."""
+    if not path:
+        return fetch_r15_pack()
+    if str(path) in TAXIM_PACKS:
+        return fetch_taxim_pack(str(path))
+    return Path(path)
+
+
+def check_geometry(pack: DataPack, mm_per_px: float, ball_diameter_mm: float, where: str = "data pack") -> None:
+    """Check that ball presses of ``ball_diameter_mm`` seen at ``mm_per_px`` fit the pack: the ball fits
+    in the field of view, and no annotated contact is wider than the ball (a contact radius is at most
+    the ball's radius)."""
+    if not (math.isfinite(mm_per_px) and mm_per_px > 0 and math.isfinite(ball_diameter_mm) and ball_diameter_mm > 0):
+        raise GelsimError("--mm-per-px and --ball-diameter-mm must be positive numbers")
+    h, w = pack.shape
+    fw, fh = w * mm_per_px, h * mm_per_px
+    if ball_diameter_mm > min(fw, fh):
+        raise GelsimError(f"{where}: a {ball_diameter_mm:g} mm ball is larger than the {fw:.1f} x {fh:.1f} mm field "
+                          f"({w}x{h} px at {mm_per_px:g} mm/px); check --ball-diameter-mm and --mm-per-px")
+    r_max = float(pack.radii_px.max()) * mm_per_px
+    if r_max > ball_diameter_mm / 2.0 * (1.0 + 1e-6):
+        i = int(np.argmax(pack.radii_px))
+        raise GelsimError(f"{where}: frame {i}'s contact radius {pack.radii_px[i]:g} px = {r_max:.2f} mm exceeds the "
+                          f"{ball_diameter_mm:g} mm ball's radius; check --mm-per-px and --ball-diameter-mm")
+
+
+# --------------------------------------------------------------------------------------
+# Measured realism of the shipped profiles (assets/realism.toml)
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RealismRecord:
+    """One shipped profile's held-out realism, as ``gelsim realism`` printed it (see the file's header)."""
+    datapack: str = param(doc="the data pack: 'r15', 'mini' or a description")
+    frames: str = param(doc="the frames scored: 'odd' or 'even' (fitted on the others)")
+    frame_count: int = param(lo=1, hi=100000, doc="number of frames scored")
+    mm_per_px: float = param(lo=1e-4, hi=1.0, lo_open=True, doc="pixel size used, mm")
+    ball_diameter_mm: float = param(lo=0.1, hi=100.0, doc="ball diameter used, mm")
+    skill: float = param(lo=-100.0, hi=1.0, doc="1 - MSE(sim) / MSE(background) in the contact disks")
+    contact_psnr_db: float = param(lo=0.0, hi=100.0, doc="PSNR in the contact disks, dB")
+    contact_l1_dn: float = param(lo=0.0, hi=255.0, doc="mean absolute error in the contact disks, DN")
+    crop_ssim: float = param(lo=-1.0, hi=1.0, doc="SSIM of 400x400 crops around the contacts")
+    crop_psnr_db: float = param(lo=0.0, hi=100.0, doc="PSNR of the crops, dB")
+    crop_l1_dn: float = param(lo=0.0, hi=255.0, doc="mean absolute error of the crops, DN")
+    baseline_contact_psnr_db: float = param(lo=0.0, hi=100.0, doc="the background alone: contact PSNR, dB")
+    baseline_contact_l1_dn: float = param(lo=0.0, hi=255.0, doc="the background alone: contact L1, DN")
+    baseline_crop_ssim: float = param(lo=-1.0, hi=1.0, doc="the background alone: crop SSIM")
+    baseline_crop_psnr_db: float = param(lo=0.0, hi=100.0, doc="the background alone: crop PSNR, dB")
+    baseline_crop_l1_dn: float = param(lo=0.0, hi=255.0, doc="the background alone: crop L1, DN")
+    small_slope_rms_dn: float = param(lo=0.0, hi=255.0, doc="small-slope RMS error, DN")
+    baseline_small_slope_rms_dn: float = param(lo=0.0, hi=255.0, doc="the background alone: small-slope RMS, DN")
+
+
+def realism_records(path: str | Path | None = None) -> dict[str, RealismRecord]:
+    """The measured realism of the shipped profiles (``assets/realism.toml``), by profile name."""
+    from .params import ASSETS_DIR, build, load_toml
+
+    path = Path(path) if path else ASSETS_DIR / "realism.toml"
+    data = load_toml(path)
+    out = {}
+    for name, table in data.items():
+        if not isinstance(table, dict):
+            raise GelsimError(f"{path.name}: {name!r} is not a table; give one [profile-name] table per profile")
+        out[name] = build(RealismRecord, table, where=f"{path.name}[{name}]")
+    return out
 
 
 # --------------------------------------------------------------------------------------
@@ -272,6 +370,74 @@ def summarize(per_frame: list[dict], base_frame: list[dict]) -> dict:
     return out
 
 
+def ball_slope(center_px, radius_px: float, shape: tuple[int, int], mm_per_px: float,
+               ball_diameter_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The gel's slope where it takes the ball's shape (inside the annotated contact):
+    ``(mask, gx, gy)``, bool ``(H, W)`` and float64 ``(n,)`` for the mask's pixels (row-major), the
+    gradient of the imprint depth (mm/mm): ``-(p - c) / sqrt(R^2 - rho^2)``, steepest at the rim."""
+    h, w = shape
+    r_ball = ball_diameter_mm / 2.0
+    m = disk_mask(center_px, min(radius_px, r_ball / mm_per_px), shape)
+    yy, xx = np.nonzero(m)
+    dx = (xx - center_px[0]) * mm_per_px
+    dy = (yy - center_px[1]) * mm_per_px
+    den = np.sqrt(np.maximum(r_ball * r_ball - dx * dx - dy * dy, 1e-12))
+    return m, -dx / den, -dy / den
+
+
+def small_slope_frame(sim_delta: np.ndarray, real_delta: np.ndarray, center_px, radius_px: float,
+                      mm_per_px: float, ball_diameter_mm: float, limit: float = SMALL_SLOPE,
+                      lower: float = 0.0) -> dict:
+    """One frame's part of the small-slope metric: the colour changes ``(H, W, 3)`` (simulated minus its
+    background, real minus its background) at the contact's pixels with slope in ``[lower, limit)``.
+    Returns ``{"sim", "real"}`` float64 ``(n, 3)`` and ``{"gx", "gy"}`` ``(n,)`` (see :func:`ball_slope`)."""
+    m, gx, gy = ball_slope(center_px, radius_px, real_delta.shape[:2], mm_per_px, ball_diameter_mm)
+    slope = np.hypot(gx, gy)
+    keep = (slope >= lower) & (slope < limit)
+    return {"sim": np.asarray(sim_delta, np.float64)[m][keep], "real": np.asarray(real_delta, np.float64)[m][keep],
+            "gx": gx[keep], "gy": gy[keep]}
+
+
+def _channel_gains(parts: list[dict], key: str) -> np.ndarray:
+    """``|g|`` per channel (DN per unit slope) of ``dc = a_frame + g . grad`` over the frames' pixels."""
+    xs, ys = [], []
+    for p in parts:
+        if len(p["gx"]) < 3:
+            continue    # a frame offset and two slopes need three pixels
+        g = np.stack([p["gx"], p["gy"]], axis=1)
+        xs.append(g - g.mean(axis=0))                   # the per-frame offset, eliminated
+        ys.append(p[key] - p[key].mean(axis=0))
+    if not xs:
+        return np.full(3, np.nan)
+    coef, *_ = np.linalg.lstsq(np.concatenate(xs), np.concatenate(ys), rcond=None)
+    return np.hypot(coef[0], coef[1])
+
+
+def small_slope_summary(parts: list[dict], limit: float = SMALL_SLOPE) -> dict:
+    """The small-slope metric over frames (:func:`small_slope_frame` results).
+
+    Returns ``pixels``; ``rms_dn`` and ``rms_dn_rgb`` (simulated vs real change); ``baseline_rms_dn``
+    (the background alone: the real change itself); ``gain_sim_dn``, ``gain_real_dn`` (DN per unit
+    slope, per channel) and ``gain_ratio`` (sim / real, per channel); ``slope_below``. Values that
+    cannot be measured (no pixel, fewer than 3 per frame, a zero real gain) are None."""
+    n = int(sum(len(p["gx"]) for p in parts))
+    out = {"slope_below": float(limit), "pixels": n}
+    if n == 0:      # no contact pixel that flat: nothing measured (None, which JSON can carry)
+        return {**out, "rms_dn": None, "rms_dn_rgb": [None] * 3, "baseline_rms_dn": None,
+                "gain_sim_dn": [None] * 3, "gain_real_dn": [None] * 3, "gain_ratio": [None] * 3}
+    e = np.concatenate([p["sim"] - p["real"] for p in parts])
+    real = np.concatenate([p["real"] for p in parts])
+    gs, gr = _channel_gains(parts, "sim"), _channel_gains(parts, "real")
+    def listed(a):
+        return [float(v) if np.isfinite(v) else None for v in a]
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = gs / gr
+    return {**out, "rms_dn": float(np.sqrt((e ** 2).mean())), "rms_dn_rgb": np.sqrt((e ** 2).mean(axis=0)).tolist(),
+            "baseline_rms_dn": float(np.sqrt((real ** 2).mean())), "gain_sim_dn": listed(gs),
+            "gain_real_dn": listed(gr), "gain_ratio": listed(ratio)}
+
+
 # --------------------------------------------------------------------------------------
 # Ball presses
 # --------------------------------------------------------------------------------------
@@ -308,7 +474,8 @@ def evaluate(profile, pack: DataPack, frames: str = "odd", *, ball_diameter_mm: 
     """Render each selected press with ``profile`` (noiseless: the expected frame) and score it.
 
     ``profile.image.mm_per_px`` sets the scale (pass a profile replaced with the pack's
-    scale). Returns :func:`summarize`'s dict plus ``"frames"`` (count) and
+    scale). Returns :func:`summarize`'s dict plus ``"small_slope"`` (:func:`small_slope_summary`),
+    ``"frames"`` (count) and
     ``"ms_per_frame"`` (render time, imprint included); with ``keep`` the frame
     index ``keep`` is also returned as ``"example": (real, sim)`` uint8 RGB.
     """
@@ -319,11 +486,16 @@ def evaluate(profile, pack: DataPack, frames: str = "odd", *, ball_diameter_mm: 
     if profile.shape != pack.shape:
         raise GelsimError(f"profile {profile.name} renders {profile.shape} px but the data pack's frames are "
                           f"{pack.shape}; use a profile of the pack's size")
+    check_geometry(pack, profile.image.mm_per_px, ball_diameter_mm, pack.source or "data pack")
     idx = pack.select(frames)
+    if not idx:
+        raise GelsimError(f"the data pack has no {frames} frames; give --frames all or a larger pack")
     ren = Renderer(profile, backend)
-    sims, bases = [], []
+    sims, bases, small = [], [], []
     example = None
     t = 0.0
+    bg = ren.background_float()
+    f0 = pack.f0.astype(np.float32)
     try:
         for i in idx:
             t0 = time.perf_counter()
@@ -333,11 +505,14 @@ def evaluate(profile, pack: DataPack, frames: str = "odd", *, ball_diameter_mm: 
             real = pack.imgs[i]
             sims.append(frame_metrics(sim, real, pack.centers_px[i], pack.radii_px[i]))
             bases.append(frame_metrics(pack.f0, real, pack.centers_px[i], pack.radii_px[i]))
+            small.append(small_slope_frame(sim - bg, real - f0, pack.centers_px[i], pack.radii_px[i],
+                                           profile.image.mm_per_px, ball_diameter_mm))
             if keep is not None and i == keep:
                 example = (real, sim)
     finally:
         ren.close()
     out = summarize(sims, bases)
+    out["small_slope"] = small_slope_summary(small)
     out["frames"] = len(idx)
     out["ms_per_frame"] = 1000.0 * t / max(1, len(idx))
     if example is not None:

@@ -12,6 +12,7 @@ keys. It loads into the frozen :class:`SensorProfile`; sections:
 * ``[background]`` the flat-gel image (non-uniform illumination)
 * ``[noise]``      camera shot and read noise
 * ``[camera]``     optics blur and vignetting
+* ``[unit_variation]`` (optional) how much units of this model differ (:mod:`gelsim.units`)
 
 Coordinates used across gelsim: the sensor frame has its origin at the image
 centre, ``x`` to the right along image columns, ``y`` down along image rows,
@@ -68,6 +69,8 @@ class MarkerSpec:
     shape: Literal["square", "disk"] = param("square", doc="marker shape")
     darkness: float = param(0.85, lo=0.0, hi=1.0, doc="fraction of the light a marker absorbs")
     jitter_mm: float = param(0.0, lo=0.0, hi=1.0, doc="random placement error of printed markers, mm")
+    missing_fraction: float = param(0.0, lo=0.0, hi=0.5,
+                                    doc="fraction of the printed grid's markers missing (not printed or worn off)")
 
 
 @dataclass(frozen=True)
@@ -99,6 +102,14 @@ class ShadingSpec:
     model: Literal["phong", "lut"] = param("phong", doc="fast backend's shading: 'phong' from the lights above, "
                                                        "'lut' a table calibrated on real frames (`gelsim calibrate`)")
     table: str = param("", doc="shading table .npz for model 'lut', relative to the profile")
+    channel_gain: tuple[float, float, float] = param(
+        (1.0, 1.0, 1.0), lo=0.0, hi=10.0,
+        doc="factor on each colour channel's shading change (R, G, B): one unit's LEDs brighter or dimmer "
+            "than the calibrated one's; models 'lut' and 'phong'")
+    channel_rotation_deg: tuple[float, float, float] = param(
+        (0.0, 0.0, 0.0), lo=-180.0, hi=180.0,
+        doc="rotation of each colour channel's LED about the gel normal (R, G, B), degrees, against the "
+            "calibrated table (an LED mounted off its place); model 'lut' (phong: edit [[lights]] azimuth_deg)")
 
     def validate(self, where: str) -> None:
         if self.model == "lut" and not self.table:
@@ -118,6 +129,8 @@ class BackgroundSpec:
     image_resample: Literal["area", "linear"] = param(
         "area", doc="how the image is brought to the profile's size: 'area' (OpenCV INTER_AREA: pixel "
                     "replication when enlarging) or 'linear' (bilinear, for a smooth downsampled field)")
+    gain: float = param(1.0, lo=0.05, hi=10.0, doc="factor on the whole flat-gel image (image or parametric): "
+                                                   "the camera's exposure, with [shading] gain_dn for the shading")
 
 
 @dataclass(frozen=True)
@@ -133,6 +146,32 @@ class CameraSpec:
 
 
 @dataclass(frozen=True)
+class UnitVariationSpec:
+    """How much units of one sensor model differ (``[unit_variation]``): the ranges that
+    :func:`gelsim.units.draw_unit` draws one unit from, uniformly. Fractions are relative
+    (``0.1`` = +-10%), the rest absolute; each range's source or reason sits beside it in the
+    profile. All default to 0 (no variation)."""
+    led_intensity_frac: float = param(0.0, lo=0.0, hi=0.9, doc="each LED's brightness, +-fraction")
+    led_color_frac: float = param(0.0, lo=0.0, hi=0.9, doc="each component of each LED's colour, +-fraction")
+    led_azimuth_deg: float = param(0.0, lo=0.0, hi=45.0, doc="each LED's direction about the gel normal, +-degrees")
+    led_elevation_deg: float = param(0.0, lo=0.0, hi=30.0, doc="each LED's elevation, +-degrees (lights only)")
+    background_offset_dn: float = param(0.0, lo=0.0, hi=60.0,
+                                        doc="flat-gel colour per channel, +-DN (parametric background)")
+    background_nonuniformity_frac: float = param(0.0, lo=0.0, hi=0.9,
+                                                 doc="amplitude of the illumination's blotches, +-fraction")
+    gel_thickness_frac: float = param(0.0, lo=0.0, hi=0.5, doc="elastomer thickness, +-fraction")
+    gel_modulus_frac: float = param(0.0, lo=0.0, hi=0.9, doc="elastomer Young's modulus, +-fraction")
+    marker_size_frac: float = param(0.0, lo=0.0, hi=0.5, doc="marker size, +-fraction")
+    marker_pitch_frac: float = param(0.0, lo=0.0, hi=0.2, doc="marker pitch, +-fraction")
+    marker_jitter_mm: float = param(0.0, lo=0.0, hi=0.5, doc="printing jitter added to the profile's, 0 to this, mm")
+    marker_missing_max: float = param(0.0, lo=0.0, hi=0.5, doc="fraction of markers missing, 0 to this")
+    read_noise_frac: float = param(0.0, lo=0.0, hi=0.9, doc="camera read noise, +-fraction")
+    blur_px: float = param(0.0, lo=0.0, hi=5.0, doc="lens blur added to the profile's, 0 to this, px (sigma)")
+    exposure_frac: float = param(0.0, lo=0.0, hi=0.5,
+                                 doc="camera exposure: the whole image's brightness, +-fraction")
+
+
+@dataclass(frozen=True)
 class SensorProfile:
     name: str
     image: ImageSpec
@@ -144,6 +183,7 @@ class SensorProfile:
     noise: NoiseSpec
     camera: CameraSpec
     description: str = ""
+    unit_variation: UnitVariationSpec | None = None   # ranges of one unit's parameters (gelsim.units)
     source: str = ""  # file the profile was loaded from (set by load_profile)
 
     def validate(self, where: str) -> None:

@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "press_cmd",
     "realism_cmd",
     "render_cmd",
+    "sensors_cmd",
 )
 
 

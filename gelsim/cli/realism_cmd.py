@@ -20,15 +20,19 @@ def register(sub) -> None:
             "taxim's calibration set). Writes PROFILE (.toml) and, beside it, PROFILE-background.png\n"
             "and PROFILE-shading.npz. Only the selected frames are used."),
     )
-    c.add_argument("datapack", metavar="DATAPACK", help="data pack .npz (or 'r15': taxim's GelSight R1.5 set, "
-                                                        "fetched once into ~/.cache/gelsim)")
+    c.add_argument("datapack", metavar="DATAPACK", help="data pack .npz, or 'r15' / 'mini': taxim 1.4.1's GelSight "
+                                                        "R1.5 / Mini set, fetched once into ~/.cache/gelsim")
     c.add_argument("--out", required=True, metavar="PROFILE", help="profile to write, .toml")
-    c.add_argument("--frames", default="even", choices=["even", "odd", "all"], help="frames to fit on")
+    c.add_argument("--frames", default="even", choices=["even", "odd", "all"],
+                   help="frames to fit on; the others (odd for even, even for odd) are scored afterwards as the "
+                        "held-out score (none for all)")
     c.add_argument("--mm-per-px", type=float, default=0.0295, help="size of one pixel on the gel, mm")
     c.add_argument("--ball-diameter-mm", type=float, default=4.0, help="diameter of the pressed ball, mm")
     c.add_argument("--base-profile", default="gelsight-r15", metavar="NAME|PATH",
                    help="profile giving the sections that are not fitted (gel stiffness, markers)")
     c.add_argument("--channel-order", default="bgr", choices=["bgr", "rgb"], help="colour order of the pack")
+    c.add_argument("--description", default=None, metavar="TEXT",
+                   help="the profile's description [default: its size and scale, and the pack it was fitted on]")
     c.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     c.set_defaults(handler=run_calibrate)
 
@@ -41,13 +45,17 @@ def register(sub) -> None:
             "and compare with the real frame: SSIM/PSNR/L1 on a 400x400 crop around the contact,\n"
             "PSNR/L1 inside the disk of 1.5 contact radii (SSIM on its bounding box), and skill =\n"
             "1 - MSE(sim)/MSE(background) in that disk. The background frame f0 as the prediction\n"
-            "is the baseline."),
+            "is the baseline. Small slopes: on the ball's flat top (true slope < 0.2, where fabric\n"
+            "texture lies), the RMS difference of the colour change and its gain per unit slope,\n"
+            "simulated over real, per channel."),
     )
     r.add_argument("--profile", default="gelsight-r15", metavar="NAME|PATH", help="sensor profile")
     r.add_argument("--datapack", default=None, metavar="PATH",
-                   help="data pack .npz [default: taxim's GelSight R1.5 set, fetched once into ~/.cache/gelsim]")
+                   help="data pack .npz, or 'r15' / 'mini' (taxim 1.4.1's GelSight R1.5 / Mini set, fetched once "
+                        "into ~/.cache/gelsim) [default: r15]")
     r.add_argument("--frames", default="odd", choices=["odd", "even", "all"], help="frames to score")
-    r.add_argument("--mm-per-px", type=float, default=0.0295, help="size of one pixel on the gel, mm")
+    r.add_argument("--mm-per-px", type=float, default=None,
+                   help="size of one pixel on the gel, mm [default: the profile's]")
     r.add_argument("--ball-diameter-mm", type=float, default=4.0, help="diameter of the pressed ball, mm")
     r.add_argument("--channel-order", default="bgr", choices=["bgr", "rgb"], help="colour order of the pack")
     r.add_argument("--out", default=None, metavar="FILE.png",
@@ -63,18 +71,19 @@ def _positive(name: str, v: float) -> None:
 
 R15_NOTE = ("Data: taxim 1.4.1's GelSight R1.5 calibration set (Si and Yuan, RA-L 2022; MIT licence).\n"
             "The background PNG is its f0 frame smoothed (sigma 1 px) at half resolution; no raw frame is shipped.")
+MINI_NOTE = ("Data: taxim 1.4.1's GelSight Mini ball presses (taxim/calib/gelsight_mini/dataPack.npz; MIT licence).\n"
+             "The background PNG is its f0 frame smoothed (sigma 1 px) at half resolution; no raw frame is shipped.")
+NOTES = {"r15": R15_NOTE, "mini": MINI_NOTE}
 
 
 def _pack(path, channel_order):
-    from ..realism import fetch_r15_pack, load_datapack
+    from ..realism import load_datapack, resolve_datapack
 
-    if path in (None, "r15"):
-        path = fetch_r15_pack()
-    return load_datapack(path, channel_order)
+    return load_datapack(resolve_datapack(path), channel_order)
 
 
 def run_calibrate(args) -> int:
-    from ..calibrate import calibrate
+    from ..calibrate import calibrate, heldout_score
     from ..sensor import load_profile
     from . import print_json
 
@@ -84,33 +93,48 @@ def run_calibrate(args) -> int:
     pack = _pack(args.datapack, args.channel_order)
     log = (lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr, flush=True))
     rep = calibrate(pack, base, args.out, frames=args.frames, mm_per_px=args.mm_per_px,
-                    ball_diameter_mm=args.ball_diameter_mm, log=log,
-                    note=R15_NOTE if args.datapack == "r15" else "")
+                    ball_diameter_mm=args.ball_diameter_mm, log=log, description=args.description,
+                    note=NOTES.get(args.datapack, ""))
+    log("scoring the held-out frames")
+    rep["heldout"] = heldout_score(rep["profile"], pack, args.frames, args.ball_diameter_mm)
     if args.json:
         print_json(rep)
+        return 0
+    b = rep["best"]
+    print(f"wrote {rep['profile']} (+ {rep['table']}, {rep['background']}) from {len(rep['frames'])} frames: "
+          f"thickness {b['thickness_mm']} mm, smoothing {b['membrane_smoothing_mm']} mm, "
+          f"shadow slope {b['shadow_tan']}, penumbra {b.get('shadow_soft_mm', 0.0)} mm, "
+          f"table smoothness {b.get('smooth_weight', 3.0)}, "
+          f"cross-validated MSE {b['cv_mse']:.1f}")
+    h = rep["heldout"]
+    if h is None:
+        print("held-out score: none (fitted on all frames)")
     else:
-        b = rep["best"]
-        print(f"wrote {rep['profile']} (+ {rep['table']}, {rep['background']}) from {len(rep['frames'])} frames: "
-              f"thickness {b['thickness_mm']} mm, smoothing {b['membrane_smoothing_mm']} mm, "
-              f"shadow slope {b['shadow_tan']}, penumbra {b.get('shadow_soft_mm', 0.0)} mm, "
-              f"cross-validated MSE {b['cv_mse']:.1f}")
+        print(f"held-out score on the {h['frames']} {h['frame_set']} frames: skill {h['skill']:.3f}, contact PSNR "
+              f"{h['contact']['psnr']:.2f} dB (background alone {h['baseline']['contact']['psnr']:.2f}), contact L1 "
+              f"{h['contact']['l1']:.2f} (background alone {h['baseline']['contact']['l1']:.2f})")
+        print(small_slope_line(h["small_slope"]))
     return 0
 
 
-def realism_report(profile="gelsight-r15", datapack=None, frames: str = "odd", *, mm_per_px: float = 0.0295,
+def realism_report(profile="gelsight-r15", datapack=None, frames: str = "odd", *, mm_per_px: float | None = None,
                    ball_diameter_mm: float = 4.0, channel_order: str = "bgr", out=None) -> dict:
-    """What ``gelsim realism --json`` prints (see :func:`gelsim.realism.evaluate`)."""
+    """What ``gelsim realism --json`` prints (see :func:`gelsim.realism.evaluate`); ``mm_per_px``
+    None keeps the profile's."""
     from ..realism import evaluate, side_by_side, write_png
     from ..sensor import load_profile
 
-    _positive("--mm-per-px", mm_per_px)
+    if mm_per_px is not None:
+        _positive("--mm-per-px", mm_per_px)
     _positive("--ball-diameter-mm", ball_diameter_mm)
     prof = load_profile(profile)
     pack = _pack(datapack, channel_order)
     h, w = pack.shape
     if prof.shape != (h, w):
-        prof = prof.with_resolution(w, h)
-    prof = dataclasses.replace(prof, image=dataclasses.replace(prof.image, mm_per_px=mm_per_px))
+        raise GelsimError(f"profile {prof.name} is {prof.image.width_px}x{prof.image.height_px} px but the data pack's "
+                          f"frames are {w}x{h}; score a profile fitted to this pack (`gelsim calibrate`)")
+    if mm_per_px is not None:
+        prof = dataclasses.replace(prof, image=dataclasses.replace(prof.image, mm_per_px=mm_per_px))
     keep = pack.select(frames)[0]
     rep = evaluate(prof, pack, frames, ball_diameter_mm=ball_diameter_mm, keep=keep if out else None)
     example = rep.pop("example", None)
@@ -135,6 +159,23 @@ def run_realism(args) -> int:
     for name, r in (("simulated", rep), ("baseline", rep["baseline"])):
         print(f"{name:10s} {r['crop']['ssim']:9.4f} {r['crop']['psnr']:6.2f} {r['crop']['l1']:5.2f} | "
               f"{r['contact']['ssim']:12.4f} {r['contact']['psnr']:6.2f} {r['contact']['l1']:5.2f} | {r['skill']:.3f}")
+    print(small_slope_line(rep["small_slope"]))
     if rep.get("image"):
         print(f"wrote {rep['image']}")
     return 0
+
+
+def small_slope_line(ss: dict) -> str:
+    """The text line of the small-slope metric (gelsim.realism.small_slope_summary)."""
+    rgb = "RGB"
+    if ss["pixels"] == 0:
+        return f"small slopes (< {ss['slope_below']:g}): no contact pixel that flat"
+    def num(v, fmt):
+        return "n/a" if v is None else format(v, fmt)
+
+    per = ", ".join(f"{c} {num(v, '.1f')}" for c, v in zip(rgb, ss["rms_dn_rgb"]))
+    ratio = " ".join(f"{c} {num(v, '.2f')}" for c, v in zip(rgb, ss["gain_ratio"]))
+    real = "/".join(num(v, ".0f") for v in ss["gain_real_dn"])
+    return (f"small slopes (< {ss['slope_below']:g}, {ss['pixels']} contact px): RMS {ss['rms_dn']:.2f} DN "
+            f"({per}; background alone {ss['baseline_rms_dn']:.2f}); gain sim/real {ratio} "
+            f"(real {real} DN per unit slope)")

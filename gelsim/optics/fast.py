@@ -51,7 +51,8 @@ class FastShader:
         self.vignetting = vignetting_map(profile)
         sh = profile.shading
         # colour matrix: output channel c = sum_i gain * colour_i[c] * dL_i
-        self.color_matrix = (sh.gain_dn * np.stack([m.color for m in maps], axis=1)).astype(np.float32)
+        self.color_matrix = (sh.gain_dn * np.asarray(sh.channel_gain, np.float32)[:, None]
+                             * np.stack([m.color for m in maps], axis=1)).astype(np.float32)
         # 1 px for the 3x3 gradient stencil, 1 more so the ROI border is flat for sure
         self.margin_px = 2
         # per-light gains folded into maps once (irradiance x reflectance x vignetting), so a

@@ -139,11 +139,12 @@ def background_float(profile, maps: list[LightMaps], seed: int) -> np.ndarray:
     vignetting the mean over the image is ``rgb_dn``. A ``background.image``
     (a real flat frame) replaces all of it, vignetting included, since the
     frame already contains its sensor's vignetting; ``camera.vignetting`` then
-    still shapes the shading change.
+    still shapes the shading change. ``background.gain`` (exposure) multiplies either.
     """
     bg_spec = profile.background
     if bg_spec.image:
-        return _background_image(profile)
+        img = _background_image(profile)
+        return img if bg_spec.gain == 1.0 else img * np.float32(bg_spec.gain)
     h, w = profile.shape
     bg = np.empty((h, w, 3), np.float32)
     bg[:] = np.asarray(bg_spec.rgb_dn, np.float32)
@@ -155,4 +156,6 @@ def background_float(profile, maps: list[LightMaps], seed: int) -> np.ndarray:
     if bg_spec.nonuniformity_dn > 0:
         bg += (bg_spec.nonuniformity_dn * smooth_random_field(profile, seed))[..., None]
     bg *= vignetting_map(profile)[..., None]
+    if bg_spec.gain != 1.0:
+        bg *= np.float32(bg_spec.gain)
     return bg

@@ -27,10 +27,27 @@ ray; the darkness ``o_k / (o_k + o_sat)`` is blurred by a Gaussian penumbra of
 ``sum_k S_k`` times it. The running max is computed on the image rotated so that
 ``u_k`` runs along columns, at half resolution, over the touched box only.
 
+Two optional terms beyond the normal (both fitted with the table, both zero on a flat gel):
+
+* the *depth term* ``d (D_0 + D_1 xn + D_2 yn)`` (DN per mm of imprint depth ``d``): the LEDs'
+  light changes with the membrane's height in the gel, so a pressed region changes colour even
+  where it is flat (the R1.5's ball tops: red +16 DN near its LED, -17 DN across the field);
+* the *halo term*: real presses change the image out to about 2.5 contact radii, beyond the
+  imprint model's spread. From the depth alone: ``b`` = the depth blurred by ``halo_sigma_mm``,
+  ``b0`` by ``halo_base_mm`` (which removes fabric texture), the spill ``s = max(b - b0, 0)`` mm
+  (positive around a bump, zero on its top and on a uniform press), its gate
+  ``g = min(s / halo_gate_mm, 1)``, and the change ``g (H_x db/dx + H_y db/dy) + H_s s``.
+
+Both are computed on a coarse grid (``COARSE_GRID_MM``) and interpolated back bilinearly. Without it the table learns the
+  halo at near-flat normals (where the ring outside a contact outnumbers the ball's own flat
+  top) as a step at flat, which over-states the response to small slopes (docs/realism.md).
+
 Table file keys: ``table`` float32 ``(nb, nb, 9)`` (bin row = ny, column = nx;
 channel ``3 * basis + colour``), and optionally ``shadow_dirs_deg`` ``(K,)``,
 ``shadow_tan`` ``(K,)``, ``shadow_rgb`` ``(K, 3)`` DN, ``shadow_sat_mm`` and ``shadow_soft_mm``
-scalars (mm), and ``gain_dn``: the profile's ``[shading] gain_dn`` when fitted; a profile with
+scalars (mm); ``depth_rgb`` ``(3, 3)`` (rows: the basis ``[1, xn, yn]``, DN per mm);
+``halo_rgb`` ``(3, 3)`` (rows: ``db/dx``, ``db/dy`` in DN per unit slope, ``s`` in DN per mm)
+with scalars ``halo_sigma_mm``, ``halo_base_mm``, ``halo_gate_mm``; and ``gain_dn``: the profile's ``[shading] gain_dn`` when fitted; a profile with
 another gain scales the table's DN by the ratio (as it scales the lights of the other models).
 """
 from __future__ import annotations
@@ -91,6 +108,21 @@ def load_table(path: str | Path) -> dict:
         out["shadow_sat_mm"] = float(data["shadow_sat_mm"])
         # tables written before soft shadows have hard-edged ones
         out["shadow_soft_mm"] = float(data.get("shadow_soft_mm", 0.0))
+    if "depth_rgb" in data:
+        if data["depth_rgb"].shape != (3, 3):
+            raise GelsimError(f"shading table {path}: depth_rgb must be (3, 3); rerun `gelsim calibrate`")
+        out["depth_rgb"] = np.asarray(data["depth_rgb"], np.float32)
+    if "halo_rgb" in data:
+        keys = ("halo_sigma_mm", "halo_base_mm", "halo_gate_mm")
+        if data["halo_rgb"].shape != (3, 3) or any(k not in data for k in keys):
+            raise GelsimError(f"shading table {path}: halo_rgb must be (3, 3) with {', '.join(keys)}; "
+                              "rerun `gelsim calibrate`")
+        vals = [float(data[k]) for k in keys]
+        if not all(math.isfinite(v) and v > 0 for v in vals) or vals[0] <= vals[1]:
+            raise GelsimError(f"shading table {path}: halo widths {vals} must be positive with "
+                              "halo_sigma_mm > halo_base_mm; rerun `gelsim calibrate`")
+        out["halo_rgb"] = np.asarray(data["halo_rgb"], np.float32)
+        out.update(zip(keys, vals))
     return out
 
 
@@ -276,6 +308,63 @@ def shadow_factors(depth: np.ndarray, mm_per_px: float, dirs_deg, tans, sat_mm: 
     return f, to_full
 
 
+# The depth and halo terms are smooth (the depth term follows the press's shape: a fabric's texture
+# changes it by about 0.1 DN), so they are computed on a coarse grid of about 0.125 mm, which the
+# halo's narrower blur (0.25 mm) spans at 2 grid pixels (a Gaussian of sigma >= 2 px is well
+# sampled), and interpolated back bilinearly.
+COARSE_GRID_MM = 0.125
+# Where the two terms change no pixel by one 8-bit step (1 DN, about the R1.5's 0.92 DN read noise),
+# they are skipped: a whole-pad fabric press 0.04-0.05 mm deep changes pixels by at most 0.4-0.8 DN
+# (vitac, catalog fabrics 1, 12, 30, 45, 80 at 3-4 N; a broad change, not the texture), and bringing
+# the terms back to full resolution would cost about 2 ms of a 960x720 frame's 10.
+COARSE_SKIP_DN = 1.0
+
+
+def coarse_factor(mm_per_px: float) -> int:
+    """Full-resolution pixels per coarse-grid pixel (an integer >= 1)."""
+    return max(1, int(COARSE_GRID_MM / mm_per_px))
+
+
+def coarse_grid(depth: np.ndarray, mm_per_px: float, field_mm: tuple[float, float], depth_term: bool,
+                halo: dict | None) -> tuple[np.ndarray, int]:
+    """The depth and halo terms' features on the coarse grid: float32 ``(h', w', k)``, ``k`` = 3 for the
+    depth term's ``[d, d xn, d yn]`` if ``depth_term`` and 3 for the halo's ``[g db/dx, g db/dy, s]``
+    if ``halo`` (a dict of ``halo_sigma_mm``, ``halo_base_mm``, ``halo_gate_mm``); and the grid's
+    factor (:func:`coarse_factor`). ``depth``: the whole frame's imprint, mm; the gel continues past
+    the image (replicated borders), as for the camera blur. See the module docstring."""
+    f = coarse_factor(mm_per_px)
+    hg = _grid_heights(depth, f)
+    gmm = mm_per_px * f
+    feats = []
+    if depth_term:
+        hs, ws = hg.shape
+        # grid pixel x' is centred on full-resolution f (x' + 1/2) - 1/2
+        h, w = depth.shape
+        xn = ((f * (np.arange(ws) + 0.5) - 0.5 - (w - 1) / 2.0) * mm_per_px / (field_mm[0] / 2.0)).astype(np.float32)
+        yn = ((f * (np.arange(hs) + 0.5) - 0.5 - (h - 1) / 2.0) * mm_per_px / (field_mm[1] / 2.0)).astype(np.float32)
+        feats += [hg, hg * xn[None, :], hg * yn[:, None]]
+    if halo is not None:
+        b = cv2.GaussianBlur(hg, (0, 0), halo["halo_sigma_mm"] / gmm, borderType=cv2.BORDER_REPLICATE)
+        b0 = cv2.GaussianBlur(hg, (0, 0), halo["halo_base_mm"] / gmm, borderType=cv2.BORDER_REPLICATE)
+        sp = cv2.subtract(b, b0)
+        cv2.max(sp, 0.0, sp)
+        gate = cv2.min(cv2.multiply(sp, 1.0 / halo["halo_gate_mm"]), 1.0)
+        gx = cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / (8.0 * gmm), borderType=cv2.BORDER_REPLICATE)
+        gy = cv2.Sobel(b, cv2.CV_32F, 0, 1, ksize=3, scale=1.0 / (8.0 * gmm), borderType=cv2.BORDER_REPLICATE)
+        feats += [cv2.multiply(gx, gate), cv2.multiply(gy, gate), sp]
+    return np.ascontiguousarray(np.stack(feats, axis=-1), dtype=np.float32), f
+
+
+def coarse_features(depth: np.ndarray, mm_per_px: float, field_mm: tuple[float, float], depth_term: bool,
+                    halo: dict | None) -> np.ndarray:
+    """:func:`coarse_grid`'s features at full resolution, interpolated as the renderer does:
+    float32 ``(H, W, k)`` (for the calibration's design matrix)."""
+    g, f = coarse_grid(depth, mm_per_px, field_mm, depth_term, halo)
+    k = g.shape[-1]
+    chans = [_upsample(np.ascontiguousarray(g[..., i]), f, depth.shape) for i in range(k)]
+    return np.stack(chans, axis=-1)
+
+
 class LutShader:
     """Colour change of the membrane from a calibrated table (see the module docstring).
 
@@ -291,6 +380,7 @@ class LutShader:
         # [shading] gain_dn is the photometric scale of both backends: the table's DN were fitted
         # at the profile's gain_dn of the time (stored with it), so another gain scales them
         gain = profile.shading.gain_dn / t["gain_dn"] if "gain_dn" in t else 1.0
+        t = adjust_channels(t, profile.shading.channel_gain, profile.shading.channel_rotation_deg)
         self.table = t["table"] * np.float32(gain)
         self.nb = self.table.shape[0]
         # the exact lookup (shade_table): one 9-channel remap, channels colour-major (3 colour +
@@ -301,6 +391,11 @@ class LutShader:
         self.shadow = dict(t, shadow_rgb=t["shadow_rgb"] * np.float32(gain)) if "shadow_rgb" in t else None
         if self.shadow is not None:
             self._shadow_mix = np.ascontiguousarray(self.shadow["shadow_rgb"].T)
+        # the depth and halo terms: their colours, stacked in coarse_grid's feature order
+        self.depth_term = "depth_rgb" in t
+        self.halo = {k: t[k] for k in ("halo_sigma_mm", "halo_base_mm", "halo_gate_mm")} if "halo_rgb" in t else None
+        mix = ([t["depth_rgb"]] if self.depth_term else []) + ([t["halo_rgb"]] if self.halo is not None else [])
+        self._coarse_mix = np.concatenate(mix).astype(np.float32) * np.float32(gain) if mix else None
         self._build_mosaic()
         # 1 px for the 3x3 gradient stencil, 1 more so the box's border is flat for sure
         self.margin_px = 2
@@ -365,11 +460,17 @@ class LutShader:
         if roi is None:
             return None
         lut = self._shade_mosaic(depth_mm, roi).copy()
-        if self.shadow is None:
+        halo = self._coarse(depth_mm)
+        if self.shadow is None and halo is None:
             return roi, lut
-        out = self.shade_shadows(depth_mm[big])
-        out[roi[0].start - big[0].start:roi[0].stop - big[0].start,
-            roi[1].start - big[1].start:roi[1].stop - big[1].start] += lut
+        parts = [(roi, lut)] + ([(big, self.shade_shadows(depth_mm[big]))] if self.shadow is not None else [])
+        if halo is not None:
+            parts.append(halo)
+            big = _union(big, halo[0])
+        out = np.zeros((big[0].stop - big[0].start, big[1].stop - big[1].start, 3), np.float32)
+        for box, change in parts:
+            out[box[0].start - big[0].start:box[0].stop - big[0].start,
+                box[1].start - big[1].start:box[1].stop - big[1].start] += change
         return big, out
 
     def parts(self, depth_mm: np.ndarray, margin_px: int, blur_sigma_px: float):
@@ -387,6 +488,9 @@ class LutShader:
             sh = self._shadows(depth_mm[big], blur_sigma_px)
             if sh is not None:
                 out.append((big, sh, True))
+        halo = self._coarse(depth_mm)
+        if halo is not None:
+            out.append((halo[0], halo[1], True))
         return out
 
     def compose(self, frame: np.ndarray, bg: np.ndarray, depth_mm: np.ndarray, margin_px: int,
@@ -422,6 +526,10 @@ class LutShader:
             if sh is not None:
                 region = frame[big]
                 cv2.add(region, sh, region)
+        halo = self._coarse(depth_mm)
+        if halo is not None:
+            region = frame[halo[0]]
+            cv2.add(region, halo[1], region)
         return True
 
     def shade(self, d: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
@@ -429,7 +537,37 @@ class LutShader:
         out = self.shade_table(d, xn, yn)
         if self.shadow is not None:
             out += self.shade_shadows(d)
+        halo = self._coarse(d)
+        if halo is not None:
+            out[halo[0]] += halo[1]
         return out
+
+    def _coarse(self, depth_mm: np.ndarray):
+        """The depth and halo terms over the box where they are not zero: ``(roi, change)`` with float32
+        ``(h, w, 3)`` DN (a fresh array), or None (no such terms, or none reaching COARSE_SKIP_DN).
+        Computed over the whole frame on the coarse grid (cheap), then interpolated back only over
+        the box of grid pixels where they are not zero, grown by one zero pixel, so that the crop's
+        bilinear values equal those of the whole grid. Added unblurred: they are smooth at the
+        camera blur's scale."""
+        if self._coarse_mix is None:
+            return None
+        g, f = coarse_grid(depth_mm, self.profile.image.mm_per_px, self.profile.field_mm, self.depth_term,
+                           self.halo)
+        hs, ws, k = g.shape
+        small = (g.reshape(-1, k) @ self._coarse_mix).reshape(hs, ws, 3)
+        mag = np.abs(small).max(axis=2)
+        if mag.max() < COARSE_SKIP_DN:
+            return None
+        rows = np.flatnonzero(mag.max(axis=1) > 0)
+        cols = np.flatnonzero(mag.max(axis=0) > 0)
+        r0, r1 = max(0, rows[0] - 1), min(hs, rows[-1] + 2)
+        c0, c1 = max(0, cols[0] - 1), min(ws, cols[-1] + 2)
+        crop = np.ascontiguousarray(small[r0:r1, c0:c1])
+        h, w = depth_mm.shape
+        y0, x0 = r0 * f, c0 * f
+        y1, x1 = min(h, r1 * f), min(w, c1 * f)
+        up = crop if f == 1 else cv2.resize(crop, ((c1 - c0) * f, (r1 - r0) * f), interpolation=cv2.INTER_LINEAR)
+        return (slice(y0, y1), slice(x0, x1)), np.ascontiguousarray(up[:y1 - y0, :x1 - x0])
 
     def shade_shadows(self, d: np.ndarray) -> np.ndarray:
         """The shadow terms alone: float32 ``(h, w, 3)`` DN (computed at half resolution)."""
@@ -497,7 +635,8 @@ class LutShader:
         cv2.remap(self._mosaic, gx, gy, cv2.INTER_LINEAR, out, borderMode=cv2.BORDER_REPLICATE)
 
     def shade_table(self, d: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
-        """The table's exact colour change: float32 ``(h, w, 3)`` DN (``xn, yn`` as in :meth:`shade`)."""
+        """The table's exact colour change: float32 ``(h, w, 3)`` DN (``xn, yn`` as in :meth:`shade`),
+        without the depth term."""
         return self._shade_table(d, basis_weights(xn, yn))
 
     def _shade_table(self, d: np.ndarray, wts: np.ndarray) -> np.ndarray:
@@ -515,6 +654,59 @@ class LutShader:
         r = r.reshape(h, 3 * w, 3)                       # per (pixel, colour): the three basis values
         cv2.multiply(r, wts, r)
         return cv2.transform(r, _SUM3).reshape(h, w, 3)
+
+
+def _rotate_pair(a: np.ndarray, b: np.ndarray, deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """The 2-vector ``(a, b)`` (element-wise arrays) rotated by ``deg`` (counter-clockwise in x, y)."""
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return c * a - s * b, s * a + c * b
+
+
+def adjust_channels(t: dict, channel_gain, rotation_deg) -> dict:
+    """A table file's arrays for a unit whose LEDs differ from the calibrated one's: colour channel
+    ``c`` scaled by ``channel_gain[c]`` and its LED turned by ``rotation_deg[c]`` about the gel normal.
+
+    Turning an LED by ``delta`` turns its response over the normal: ``T'_c(n) = T_c(R(-delta) n)``
+    (the table resampled bilinearly; ``T(0) = 0`` stays), and with it the direction of its
+    spatial, depth and halo terms and of the shadow it casts (the shadow whose colour darkens
+    channel ``c`` most). Returns ``t`` itself when nothing changes."""
+    gains = np.asarray(channel_gain, np.float32)
+    rots = [float(r) for r in rotation_deg]
+    if np.all(gains == 1.0) and not any(rots):
+        return t
+    t = dict(t)
+    table = t["table"].copy()
+    nb = table.shape[0]
+    half = (nb - 1) / 2.0
+    jj, ii = np.meshgrid(np.arange(nb, dtype=np.float32), np.arange(nb, dtype=np.float32))
+    nx, ny = (jj - half) / half, (ii - half) / half
+    for c in range(3):
+        if rots[c]:
+            sx, sy = _rotate_pair(nx, ny, -rots[c])
+            mx, my = (half + half * sx).astype(np.float32), (half + half * sy).astype(np.float32)
+            for b in range(3):
+                table[..., 3 * b + c] = cv2.remap(np.ascontiguousarray(table[..., 3 * b + c]), mx, my,
+                                                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            table[..., 3 + c], table[..., 6 + c] = _rotate_pair(table[..., 3 + c], table[..., 6 + c], rots[c])
+        table[..., c::3] *= gains[c]
+    t["table"] = table
+    if "shadow_rgb" in t:
+        own = np.argmin(t["shadow_rgb"], axis=1)                # the channel each shadow darkens most
+        t["shadow_dirs_deg"] = (t["shadow_dirs_deg"] + np.asarray([rots[c] for c in own], np.float32)).astype(np.float32)
+        t["shadow_rgb"] = t["shadow_rgb"] * gains[None, :]
+    for key, pair in (("depth_rgb", (1, 2)), ("halo_rgb", (0, 1))):
+        if key in t:
+            m = t[key].copy()
+            for c in range(3):
+                m[pair[0], c], m[pair[1], c] = _rotate_pair(m[pair[0], c], m[pair[1], c], rots[c])
+            t[key] = m * gains[None, :]
+    return t
+
+
+def _union(a, b):
+    """The smallest box (row and column slices) holding boxes ``a`` and ``b``."""
+    return (slice(min(a[0].start, b[0].start), max(a[0].stop, b[0].stop)),
+            slice(min(a[1].start, b[1].start), max(a[1].stop, b[1].stop)))
 
 
 _SUM3 = np.ones((1, 3), np.float32)     # cv2.transform matrix: the sum of three channels

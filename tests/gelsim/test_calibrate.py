@@ -85,6 +85,11 @@ def test_fitted_profile_reproduces_held_out_frames(fitted):
     assert res["contact"]["psnr"] > res["baseline"]["contact"]["psnr"] + 8.0
     # noise of 2 DN in both frames bounds the PSNR at about 10 log10(255^2 / 4) = 42 dB
     assert res["contact"]["psnr"] < 44.0
+    # near flat the fitted table responds about as the truth does (no step, no dead zone at flat).
+    # Measured 0.95 / 1.04 / 0.79: at this resolution the ball's flat top is a few pixels, and the
+    # halo's directional part, radial around the press as the rim's normals are, takes a little of
+    # the weakest channel's response (the fit without depth and halo terms gave 0.99 / 1.05 / 0.96)
+    assert all(0.75 < g < 1.25 for g in res["small_slope"]["gain_ratio"]), res["small_slope"]
 
 
 def test_background_is_smoothed_half_resolution_and_noise_fit_ignores_contacts():
@@ -115,6 +120,60 @@ def test_calibrate_bad_input(tmp_path, fitted):
         calibrate(few, load_profile("vitac"), tmp_path / "x.toml", mm_per_px=truth.image.mm_per_px)
 
 
+def _write(tmp_path, data, name="p.npz"):
+    np.savez(tmp_path / name, **data)
+    return str(tmp_path / name)
+
+
+@pytest.mark.parametrize("change, args, match", [
+    (lambda d: d.update(touch_center=np.vstack([d["touch_center"][:-1], [[500.0, 20.0]]])), [], "outside"),
+    (lambda d: None, ["--ball-diameter-mm", "30"], "larger than the"),
+    (lambda d: None, ["--ball-diameter-mm", "1"], "exceeds the"),
+    (lambda d: d.update(imgs=d["imgs"][:5], touch_center=d["touch_center"][:5], touch_radius=d["touch_radius"][:5]),
+     [], "at least 4"),
+    (lambda d: d.update(imgs=d["imgs"][:6], touch_center=d["touch_center"][:6], touch_radius=d["touch_radius"][:6]),
+     ["--frames", "odd"], "at least 4"),
+    (lambda d: d.pop("f0"), [], "lacks f0"),
+    (lambda d: d.update(touch_radius=d["touch_radius"][:, None]), [], "touch_radius has shape"),
+])
+def test_calibrate_refuses_bad_packs_in_one_line_and_writes_nothing(fitted, tmp_path, capsys, change, args, match):
+    truth, pack, rep, d = fitted
+    data = dict(np.load(d / "pack.npz"))
+    change(data)
+    src = tmp_path / "src"
+    src.mkdir()
+    out = tmp_path / "out"
+    out.mkdir()
+    code = main(["calibrate", _write(src, data), "--out", str(out / "p.toml"),
+                 "--mm-per-px", str(truth.image.mm_per_px), *args])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and match in err, err
+    assert list(out.iterdir()) == []
+
+
+def test_realism_refuses_a_profile_of_another_size(fitted, capsys):
+    truth, pack, rep, d = fitted
+    assert main(["realism", "--profile", "gelsight-r15", "--datapack", str(d / "pack.npz")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "640x480" in err and "160x120" in err
+
+
+def test_cli_calibrate_reports_its_held_out_score(fitted, tmp_path, capsys):
+    """Fitted on the even frames, the command scores the odd ones itself (JSON and text)."""
+    truth, pack, rep, d = fitted
+    args = ["calibrate", str(d / "pack.npz"), "--out", str(tmp_path / "c.toml"), "--mm-per-px",
+            str(truth.image.mm_per_px), "--ball-diameter-mm", str(BALL_MM), "--base-profile", "vitac"]
+    assert main(args + ["--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    held = doc["heldout"]
+    assert held["frame_set"] == "odd" and held["frames"] == 6
+    assert held["skill"] > 0.9 and held["baseline"]["skill"] == 0.0
+    again = evaluate(load_profile(tmp_path / "c.toml"), pack, "odd", ball_diameter_mm=BALL_MM)
+    assert held["skill"] == pytest.approx(again["skill"])
+    assert main(args[:3] + [str(tmp_path / "c2.toml")] + args[4:] + ["--frames", "all"]) == 0
+    assert "held-out score: none" in capsys.readouterr().out
+
+
 def test_cli_calibrate_and_realism(fitted, tmp_path, capsys):
     truth, pack, rep, d = fitted
     bad = dict(np.load(d / "pack.npz"))
@@ -130,6 +189,12 @@ def test_cli_calibrate_and_realism(fitted, tmp_path, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert set(doc["crop"]) == {"ssim", "psnr", "l1"} and set(doc["contact"]) == {"ssim", "psnr", "l1"}
     assert doc["frames"] == 6 and doc["skill"] > 0.9 and doc["baseline"]["skill"] == 0.0
+    assert doc["small_slope"]["pixels"] > 0 and len(doc["small_slope"]["gain_ratio"]) == 3
     import cv2
     img = cv2.imread(str(out_png))
     assert img.shape == (truth.shape[0], 3 * truth.shape[1], 3)
+    assert main(["realism", "--profile", str(d / "fit.toml"), "--datapack", str(d / "pack.npz"),
+                 "--mm-per-px", str(truth.image.mm_per_px)]) == 0
+    text = capsys.readouterr().out
+    line = [ln for ln in text.splitlines() if ln.startswith("small slopes")]
+    assert len(line) == 1 and "gain sim/real R" in line[0] and "RMS" in line[0]

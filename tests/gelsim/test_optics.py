@@ -332,8 +332,10 @@ def test_markers_accept_object_with_corners(small):
 
 @pytest.mark.parametrize("setting", ["bright", "dark"])
 def test_no_wraparound_or_nan_at_extremes(vitac, setting):
-    # specular and shininess belong to the phong model (the calibrated table has no highlight)
+    # specular and shininess belong to the phong model (the calibrated table has no highlight); the
+    # LEDs at full intensity, so that the extremes do not depend on the calibrated intensities
     vitac = replace(vitac, shading={"model": "phong"})
+    vitac = dataclasses.replace(vitac, lights=tuple(dataclasses.replace(lt, intensity=1.0) for lt in vitac.lights))
     if setting == "bright":
         p = replace(vitac, shading={"gain_dn": 1000.0, "specular": 10.0, "shininess": 2.0},
                     background={"rgb_dn": (250.0, 250.0, 250.0), "led_tint_dn": 255.0},
@@ -455,7 +457,48 @@ def _reference_lut_frame(renderer, depth):
     sigma = math.hypot(s["shadow_soft_mm"] / mm, prof.camera.blur_sigma_px) / 2
     f = np.stack([ndimage.gaussian_filter(f[..., c], sigma, mode="constant", truncate=4.0) for c in range(3)], -1)
     up = cv2.resize(f.astype(np.float32), (hg.shape[1] * 2, hg.shape[0] * 2), interpolation=cv2.INTER_LINEAR)
-    return (frame + up[:h, :w]).astype(np.float32)
+    return (frame + up[:h, :w] + _reference_coarse_terms(renderer, depth)).astype(np.float32)
+
+
+def _reference_coarse_terms(renderer, depth):
+    """The table's depth and halo terms, computed plainly: block means on the coarse grid (zero-padded),
+    scipy's Gaussian filters and Sobel (replicated borders), the spill and its gate, the features'
+    colours, bilinear back to full resolution, nothing where no pixel changes by COARSE_SKIP_DN."""
+    from scipy import ndimage
+
+    from gelsim.optics.lut import COARSE_SKIP_DN, coarse_factor, load_table, table_path
+
+    prof, sh = renderer.profile, renderer._shader
+    t = load_table(table_path(prof))
+    h, w = prof.shape
+    mm = prof.image.mm_per_px
+    f = coarse_factor(mm)
+    hs, ws = -(-h // f), -(-w // f)
+    hp = np.zeros((hs * f, ws * f))
+    hp[:h, :w] = depth
+    hg = hp.reshape(hs, f, ws, f).mean(axis=(1, 3))
+    gmm = mm * f
+    fw, fh = prof.field_mm
+    xn = (f * (np.arange(ws) + 0.5) - 0.5 - (w - 1) / 2) * mm / (fw / 2)
+    yn = (f * (np.arange(hs) + 0.5) - 0.5 - (h - 1) / 2) * mm / (fh / 2)
+    gain = prof.shading.gain_dn / t["gain_dn"]
+    change = np.zeros((hs, ws, 3))
+    if "depth_rgb" in t:
+        d = t["depth_rgb"].astype(np.float64) * gain
+        change += hg[..., None] * (d[0] + xn[None, :, None] * d[1] + yn[:, None, None] * d[2])
+    if "halo_rgb" in t:
+        b = ndimage.gaussian_filter(hg, t["halo_sigma_mm"] / gmm, mode="nearest", truncate=4.0)
+        b0 = ndimage.gaussian_filter(hg, t["halo_base_mm"] / gmm, mode="nearest", truncate=4.0)
+        spill = np.maximum(b - b0, 0.0)
+        gate = np.minimum(spill / t["halo_gate_mm"], 1.0)
+        gx = ndimage.sobel(b, axis=1, mode="nearest") / (8 * gmm)
+        gy = ndimage.sobel(b, axis=0, mode="nearest") / (8 * gmm)
+        hr = t["halo_rgb"].astype(np.float64) * gain
+        change += (gate * gx)[..., None] * hr[0] + (gate * gy)[..., None] * hr[1] + spill[..., None] * hr[2]
+    if np.abs(change).max() < COARSE_SKIP_DN:
+        return np.zeros((h, w, 3), np.float32)
+    up = cv2.resize(change.astype(np.float32), (ws * f, hs * f), interpolation=cv2.INTER_LINEAR)
+    return up[:h, :w]
 
 
 def _weave(profile, base_mm, amp_mm):
@@ -513,6 +556,9 @@ def test_banded_pass_equals_one_pass_over_the_box(small, monkeypatch):
     ref = r.background_float()
     ref[roi] += gaussian_blur(sh._shade_mosaic(d, roi).copy(), small.camera.blur_sigma_px)
     ref[big] += sh._shadows(d[big], small.camera.blur_sigma_px)
+    coarse = sh._coarse(d)
+    assert coarse is not None                       # the depth and halo terms are part of this press
+    ref[coarse[0]] += coarse[1]
     np.testing.assert_allclose(whole, ref, atol=2e-4)
 
 
