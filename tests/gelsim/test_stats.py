@@ -1,6 +1,7 @@
 """gelsim.stats: the marker-field fit, the label-vs-image check, per-sequence statistics, the crop."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
 import types
@@ -158,10 +159,11 @@ def test_label_agreement_with_the_marker_model_on_a_sphere_press():
     preset's median contact): the fit in the contact region recovers the labels within the
     tolerance, the whole pad does not."""
     prof = load_profile("vitac").with_resolution(320, 240)
+    prof = dataclasses.replace(prof, gel=dataclasses.replace(prof.gel, dome_radius_mm=0.0))  # the marker fit alone
     fid = get_fidelity("balanced")
     mmpp = prof.image.mm_per_px
     im = press(indenters.sphere(40.0, prof, center_mm=(3.0, 2.0)), prof, fid, force_n=3.0)
-    assert 20 < im.contact_area_mm2 < 40
+    assert 20 < im.contact_area_mm2 < 60
     rest = marker_grid(prof)
     shear = (0.06, -0.03)
     mk = displace(prof, fid, im, shear_mm=shear, twist_deg=1.0, rest=rest)
