@@ -303,7 +303,7 @@ def _worker_init(config: GenerateConfig, root: str) -> None:
 def generate_sequence(spec: SequenceSpec) -> dict:
     """Simulate, render, encode and record one sequence (in a worker). Returns its record."""
     from .motion import sample_motion
-    from .sequence import SequenceOutput, render_sequence
+    from .sequence import SequenceOutput, render_sequence, stage_clock
     from .video import VideoWriter, video_path
 
     w = _WORKER
@@ -323,17 +323,17 @@ def generate_sequence(spec: SequenceSpec) -> dict:
     with VideoWriter(vpath, fmt=config.format, fps=profile.image.fps_hz) as writer:
         for frame in render_sequence(fabric, motion, profile, fidelity, seed=spec.seed,
                                      renderer=w["renderer"], sensor_seed=config.seed, out=out):
-            te = time.perf_counter()
+            te = stage_clock()
             writer.write(frame)
-            encode_s += time.perf_counter() - te
-    te = time.perf_counter()
+            encode_s += stage_clock() - te
+    te = stage_clock()
     lpath = root / spec.labels_rel()
     import io
 
     buf = io.BytesIO()
     np.savez_compressed(buf, **out.labels)
     atomic_write_bytes(lpath, buf.getvalue())
-    encode_s += time.perf_counter() - te
+    encode_s += stage_clock() - te
     in_contact = np.asarray(out.labels["in_contact"], bool)
     onset = int(np.argmax(in_contact)) if in_contact.any() else -1
     timings = dict(out.timings_s, encode=encode_s)
