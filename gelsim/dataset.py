@@ -31,6 +31,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from . import __version__
+from .atomic import atomic_write_bytes, atomic_write_json  # noqa: F401  (re-exported)
 from .errors import GelsimError
 
 FORMAT = "gelsim-dataset"
@@ -205,20 +206,6 @@ def plan(config: GenerateConfig, catalog_size: int) -> list[SequenceSpec]:
 
 
 # ---------------------------------------------------------------- files
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def atomic_write_json(path: Path, obj: Any) -> None:
-    atomic_write_bytes(path, (json.dumps(obj, indent=1, sort_keys=False) + "\n").encode())
-
 
 def sha256_of(path: Path) -> str:
     """Checksum of a file, or of a PNG directory's frames in order."""

@@ -24,6 +24,7 @@ COMMAND_MODULES = (
     "realism_cmd",
     "render_cmd",
     "sensors_cmd",
+    "texture_cmd",
 )
 
 
