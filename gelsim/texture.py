@@ -6,8 +6,9 @@ the pipeline:
 1. **fabric**: the relief of the pressed cloth (its protrusion map), in mm;
 2. **gel**: the relief of the gel's surface (the imprint's depth map) and its slopes; the ratio to
    the fabric's is the relief the gel keeps;
-3. **image**: the texture's contrast in the rendered frame (no noise, no markers), DN, against the
-   camera noise in the same band;
+3. **image**: the texture's contrast in the rendered frame (no noise, no markers; the frame minus
+   that of the same imprint smoothed beyond the band, so that only the texture counts), DN, against
+   the camera noise in the same band;
 4. **H.264**: both again after the dataset's codec (the frames a classifier is given).
 
 Every quantity is taken in the fabric's **pitch band**: spatial wavelengths from half its finest pitch
@@ -184,14 +185,19 @@ def texture_budget(fabric, force_n: float, profile, fidelity, *, seed: int = 0, 
     slope = np.hypot(gx, gy)[region] if region.any() else np.array([np.nan])
     t0 = time.perf_counter()
     ren = renderer or Renderer(profile, "fast", seed=0)
+    # The texture's own share of the image: the frame minus the frame of the same imprint without its
+    # texture (the depth smoothed beyond the band), so that the contact's smooth shading (the dome's
+    # rim) and the background's illumination field, both partly in a coarse band, do not count.
+    smooth = cv2.GaussianBlur(im.depth_mm, (0, 0), band.sigmas_px(mm)[1], borderType=cv2.BORDER_REFLECT)
     clean = ren.render(im.depth_mm, None, noise=False)
+    macro = ren.render(smooth, None, noise=False)
     flat = ren.render(None, None, noise=False)
     rng = np.random.default_rng(seed)
-    noisy = [ren.render(im.depth_mm, None, seed=rng) for _ in range(CODEC_FRAMES)]
     noise_only = [ren.render(None, None, seed=rng) for _ in range(CODEC_FRAMES)]
     times["optics"] = time.perf_counter() - t0
-    img = band_rms(clean, region, band, mm)
-    rgb = tuple(band_rms(clean[..., c], region, band, mm) for c in range(3))
+    tex_img = clean.astype(np.float32) - macro.astype(np.float32)
+    img = band_rms(tex_img, region, band, mm)
+    rgb = tuple(band_rms(tex_img[..., c], region, band, mm) for c in range(3))
     noise = band_rms(noise_only[0].astype(np.float32) - flat.astype(np.float32), region, band, mm)
     out = TextureBudget(fabric.id, fabric.family, float(force_n), (band.fine_mm, band.coarse_mm),
                         im.contact_area_mm2, float(region.sum()) * mm * mm, fab_rel, gel_rel,
@@ -199,15 +205,20 @@ def texture_budget(fabric, force_n: float, profile, fidelity, *, seed: int = 0, 
                         float(np.sqrt(np.mean(slope.astype(np.float64) ** 2))), float(np.percentile(slope, 95)),
                         img, rgb, noise, img / noise if noise > 0 else float("inf"))
     if codec:
+        # The same differences after the codec, each clip a held frame (noise alone varies, as in a
+        # sequence; the middle frame is a predicted one).
         t0 = time.perf_counter()
         mid = CODEC_FRAMES // 2
-        dec = _codec(noisy, profile.image.fps_hz)[mid].astype(np.float32)
-        dec_noise = _codec(noise_only, profile.image.fps_hz)[mid].astype(np.float32)
-        cn = band_rms(dec_noise, region, band, mm)
-        ci = band_rms(dec, region, band, mm)
-        out.codec_image_dn = math.sqrt(max(ci * ci - cn * cn, 0.0))
+        fps = profile.image.fps_hz
+
+        def coded(frames):
+            return _codec(frames, fps)[mid].astype(np.float32)
+
+        ci = band_rms(coded([clean] * CODEC_FRAMES) - coded([macro] * CODEC_FRAMES), region, band, mm)
+        cn = band_rms(coded(noise_only) - coded([flat] * CODEC_FRAMES), region, band, mm)
+        out.codec_image_dn = ci
         out.codec_noise_dn = cn
-        out.codec_snr = out.codec_image_dn / cn if cn > 0 else float("inf")
+        out.codec_snr = ci / cn if cn > 0 else float("inf")
         times["codec"] = time.perf_counter() - t0
     out.timings_s = {k: round(v, 3) for k, v in times.items()}
     return out

@@ -18,8 +18,9 @@ def register(sub) -> None:
         description=(
             "Press an indenter into the gel with a given normal force and print the simulated contact\n"
             "radius (from the contact area) and indentation, with Hertz's rigid sphere on an elastic\n"
-            "half-space beside them (spheres only). Hertz ignores the gel's finite thickness: expect the\n"
-            "elastic model to be stiffer than Hertz once the contact radius is a sizeable fraction of it.\n"
+            "half-space beside them (spheres only; on a domed gel with the sphere's and the dome's\n"
+            "curvatures added). Hertz ignores the gel's finite thickness: expect the gel to be stiffer\n"
+            "than Hertz once the contact radius is a sizeable fraction of it.\n"
             "The cylinder lies on its side, its axis in the gel plane."),
     )
     p.add_argument("--indenter", default="sphere", metavar="sphere|cylinder|PATH",
@@ -32,7 +33,7 @@ def register(sub) -> None:
     p.add_argument("--force-n", type=float, required=True, help="normal force, N (> 0)")
     p.add_argument("--profile", default="vitac", metavar="NAME|PATH", help="sensor profile")
     p.add_argument("--fidelity", default="reference", choices=["fast", "balanced", "reference"],
-                   help="fidelity level: reference = elastic model, fast/balanced = pyramid model")
+                   help="fidelity level: reference = elastic model at every pixel, fast/balanced = two-scale model")
     p.add_argument("--resolution-px", type=int, default=None, metavar="W",
                    help="image width, px, same field of view [default: the profile's]")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
@@ -83,13 +84,17 @@ def press_report(indenter: str, force_n: float, *, diameter_mm: float | None = 4
         "max_depth_mm": float(imp.depth_mm.max()),
         "bottomed_out": imp.bottomed_out,
         "gel_thickness_mm": prof.gel.thickness_mm,
+        "gel_dome_radius_mm": prof.gel.dome_radius_mm or None,
         "young_modulus_mpa": prof.gel.young_modulus_mpa,
         "poisson_ratio": prof.gel.poisson_ratio,
         "contact_radius_over_thickness": a / prof.gel.thickness_mm,
         "elapsed_ms": round(elapsed * 1000.0, 1),
     }
     if indenter == "sphere":
-        ha, hd = hertz(diameter_mm, force_n, prof.gel)
+        # A domed gel adds its curvature to the sphere's: 1/R = 1/R_sphere + 1/R_dome.
+        dome = prof.gel.dome_radius_mm
+        d_eff = diameter_mm if not dome else 2.0 / (2.0 / diameter_mm + 1.0 / dome)
+        ha, hd = hertz(d_eff, force_n, prof.gel)
         out.update(hertz_contact_radius_mm=ha, hertz_indentation_mm=hd,
                    contact_radius_ratio=a / ha, indentation_ratio=imp.indentation_mm / hd)
     return out
