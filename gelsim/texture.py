@@ -156,8 +156,11 @@ def _codec(frames: list[np.ndarray], fps: float) -> list[np.ndarray]:
 
 
 def texture_budget(fabric, force_n: float, profile, fidelity, *, seed: int = 0, codec: bool = True,
-                   renderer=None) -> TextureBudget:
-    """The texture budget of ``fabric`` pressed flat at ``force_n`` (N) on ``profile`` at ``fidelity``."""
+                   renderer=None, frame: bool = False):
+    """The texture budget of ``fabric`` pressed flat at ``force_n`` (N) on ``profile`` at ``fidelity``.
+
+    ``frame``: also return the frame as the dataset holds it (markers, noise, after the codec if
+    ``codec``): uint8 (H, W, 3) RGB; the result is then (TextureBudget, frame)."""
     import time
 
     from .fabrics import heightfield
@@ -221,4 +224,39 @@ def texture_budget(fabric, force_n: float, profile, fidelity, *, seed: int = 0, 
         out.codec_snr = ci / cn if cn > 0 else float("inf")
         times["codec"] = time.perf_counter() - t0
     out.timings_s = {k: round(v, 3) for k, v in times.items()}
+    if not frame:
+        return out
+    from .markers import displace
+
+    mk = displace(profile, fidelity, im, rest=None) if profile.markers.enabled else None
+    rng = np.random.default_rng(seed + 1)
+    shots = [ren.render(im.depth_mm, mk, seed=rng) for _ in range(CODEC_FRAMES if codec else 1)]
+    img = _codec(shots, profile.image.fps_hz)[CODEC_FRAMES // 2] if codec else shots[0]
+    return out, img
+
+
+def sheet(tiles: list[tuple[np.ndarray, str]], columns: int = 10) -> np.ndarray:
+    """Labelled tiles (uint8 RGB crops of one size, label text) on a white grid: uint8 RGB."""
+    th, tw = tiles[0][0].shape[:2]
+    label_h, pad = 16, 3
+    rows = -(-len(tiles) // columns)
+    out = np.full((rows * (th + label_h + pad) + pad, columns * (tw + pad) + pad, 3), 255, np.uint8)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    for k, (img, text) in enumerate(tiles):
+        r, c = divmod(k, columns)
+        y, x = pad + r * (th + label_h + pad), pad + c * (tw + pad)
+        out[y + label_h:y + label_h + th, x:x + tw] = img
+        scale = 0.36
+        while scale > 0.2 and cv2.getTextSize(text, font, scale, 1)[0][0] > tw:
+            scale -= 0.02
+        cv2.putText(out, text, (x, y + label_h - 4), font, scale, (0, 0, 0), 1, cv2.LINE_AA)
     return out
+
+
+def crop_at(img: np.ndarray, centre_xy: tuple[float, float], size_wh: tuple[int, int]) -> np.ndarray:
+    """A ``size_wh`` crop of ``img`` centred near ``centre_xy`` (x, y px), kept inside the frame."""
+    h, w = img.shape[:2]
+    cw, ch = size_wh
+    x0 = int(min(max(round(centre_xy[0] - cw / 2), 0), w - cw))
+    y0 = int(min(max(round(centre_xy[1] - ch / 2), 0), h - ch))
+    return img[y0:y0 + ch, x0:x0 + cw]

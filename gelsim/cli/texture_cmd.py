@@ -41,6 +41,10 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="fabric irregularity and noise seed")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write texture.json, texture.md (per family) and texture.png there")
+    p.add_argument("--sheet", default=None, metavar="FILE.png",
+                   help="also write a contact sheet: each fabric's frame as the dataset holds it (markers, noise, "
+                        "H.264) at the first force, cropped at the contact's centre at full resolution")
+    p.add_argument("--crop", default="144x108", metavar="WxH", help="size of each sheet tile, px")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.set_defaults(handler=run_texture)
 
@@ -88,7 +92,7 @@ def run_texture(args) -> int:
     from ..optics import Renderer
     from ..runtime import configure_worker
     from ..sensor import load_profile
-    from ..texture import texture_budget
+    from ..texture import crop_at, texture_budget
     from . import print_json
 
     configure_worker()
@@ -107,6 +111,16 @@ def run_texture(args) -> int:
     if out_dir is not None and out_dir.exists() and not out_dir.is_dir():
         raise GelsimError(f"--out {out_dir} exists and is not a directory; give a directory")
     ren = Renderer(prof, "fast", seed=0)
+    crop = None
+    if args.sheet:
+        try:
+            crop = tuple(int(v) for v in args.crop.lower().split("x"))
+            assert len(crop) == 2 and 16 <= crop[0] <= prof.shape[1] and 16 <= crop[1] <= prof.shape[0]
+        except (ValueError, AssertionError):
+            raise GelsimError(f"--crop {args.crop!r} must be WxH within the {prof.shape[1]}x{prof.shape[0]} frame") from None
+        if not str(args.sheet).endswith(".png"):
+            raise GelsimError(f"--sheet {args.sheet}: give a .png file name")
+    tiles = []
     rows = []
     t0 = time.perf_counter()
     bar = None
@@ -114,9 +128,17 @@ def run_texture(args) -> int:
         from tqdm import tqdm
         bar = tqdm(total=len(ids) * len(forces), desc="texture", unit="press")
     for fid_ in ids:
-        for f in forces:
-            b = texture_budget(cat[fid_], f, prof, fid, seed=args.seed, codec=not args.no_codec, renderer=ren)
+        for i, f in enumerate(forces):
+            want = crop is not None and i == 0
+            res = texture_budget(cat[fid_], f, prof, fid, seed=args.seed, codec=not args.no_codec, renderer=ren,
+                                 frame=want)
+            b = res[0] if want else res
             rows.append(b.to_dict() | {"name": cat[fid_].name})
+            if want:
+                h, w = prof.shape
+                snr = b.codec_snr if b.codec_snr is not None else b.snr
+                tiles.append((crop_at(res[1], ((w - 1) / 2, (h - 1) / 2), crop),
+                              f"{fid_} {cat[fid_].name[:18]} {snr:.1f}x"))
             if bar:
                 bar.update(1)
     if bar:
@@ -126,6 +148,11 @@ def run_texture(args) -> int:
            "rows": rows, "families": summarize(rows)}
     if out_dir is not None:
         write_report(doc, out_dir)
+    if tiles:
+        from ..atomic import write_png
+        from ..texture import sheet
+
+        write_png(args.sheet, sheet(tiles))
     if args.json:
         print_json(doc)
         return 0
