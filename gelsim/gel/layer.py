@@ -212,13 +212,24 @@ def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = 
             r -= dtype(float(np.vdot(r, icf)) / n)
         den = float(np.vdot(r, t))  # t is zero off the contact
         if den == 0.0:
-            break
+            # The current contact set is solved exactly (e.g. a few cells of equal height with the
+            # uniform start): let the cells that overlap the object join, or stop if none do.
+            iol = (p == 0) & (g < 0)
+            if not iol.any():
+                break
+            p = np.where(iol, dtype(float(p.sum()) / n), p)
+            if force_ctl:
+                p *= dtype(force / (area * float(p.sum())))
+            t[:] = 0
+            d = 0.0
+            continue
         tau = float(np.vdot(g, t)) / den
         p_old = p.copy()
         p -= dtype(tau) * t
         np.maximum(p, 0, out=p)
         iol = (p == 0) & (g < 0)
-        if iol.any():
+        grew = bool(iol.any())
+        if grew:
             d = 0.0
             p -= np.where(iol, dtype(tau) * g, dtype(0))
         else:
@@ -229,7 +240,9 @@ def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = 
         if force_ctl:
             p *= dtype(force / (area * s))
             s = force / area
-        if float(np.abs(p - p_old).sum()) / s < tol:
+        # Converged when the pressure no longer moves and no overlapping cell joined the contact this
+        # step (a small first contact set can otherwise "converge" after one tiny step).
+        if float(np.abs(p - p_old).sum()) / s < tol and not grew:
             break
     p = p.astype(np.float64)
     if force_ctl:

@@ -34,7 +34,9 @@ def test_json_keys_and_hertz_values(capsys, thick_profile):
                    "--profile", str(thick_profile), "--fidelity", "reference", "--resolution-px", "480")
     assert KEYS <= set(rep)
     assert rep["model"] == "elastic" and rep["force_n"] == 0.02
-    a, d = hertz(4.0, 0.02, load_profile(thick_profile).gel)
+    gel = load_profile(thick_profile).gel
+    # The gel is domed: Hertz with the sphere's and the dome's curvatures added (1/R = 1/2 + 1/R_dome).
+    a, d = hertz(2.0 / (2.0 / 4.0 + 1.0 / gel.dome_radius_mm), 0.02, gel)
     assert rep["hertz_contact_radius_mm"] == pytest.approx(a)
     assert rep["hertz_indentation_mm"] == pytest.approx(d)
     assert rep["contact_radius_mm"] == pytest.approx(a, rel=0.10)
