@@ -259,3 +259,85 @@ def fit_map_row(kind: str, s: float, n: int) -> dict[str, float]:
 
     lam = brentq(err, 0.0, 1.0) if err(0.0) < 0 < err(1.0) else (0.0 if err(0.0) >= 0 else 1.0)
     return {"s": s, "contact_fraction": res.contact_fraction, "kept": kept, "zeta": zeta, "lam": float(lam)}
+
+
+# --------------------------------------------------------------------------------------
+# A wave pressed over a whole flat pad (the tests' and benchmarks/bench_johnson.py's case)
+# --------------------------------------------------------------------------------------
+WAVE_SLOPE = 0.15        # 2 pi h / L: small slopes, as on cloth
+WAVE_PX_PER_PERIOD = 24
+
+
+def wave_profile(base, wavelength_mm: float, px_per_period: int = WAVE_PX_PER_PERIOD, width_px: int = 192,
+                 height_px: int = 128):
+    """``base`` (a SensorProfile) with a flat gel, no membrane smoothing and a field of
+    ``width_px`` x ``height_px`` pixels of wavelength / px_per_period mm: the imprint alone, resolved."""
+    import dataclasses
+
+    return dataclasses.replace(
+        base, image=dataclasses.replace(base.image, width_px=width_px, height_px=height_px,
+                                        mm_per_px=wavelength_mm / px_per_period),
+        gel=dataclasses.replace(base.gel, dome_radius_mm=0.0, membrane_smoothing_mm=0.0))
+
+
+def wave_field(prof, kind: str, wavelength_mm: float, amplitude_mm: float, angle_deg: float = 0.0) -> np.ndarray:
+    """The wave over ``prof``'s field, float32 (H, W) mm, turned by ``angle_deg``."""
+    h, w = prof.shape
+    mm = prof.image.mm_per_px
+    x = ((np.arange(w) + 0.5) * mm)[None, :]
+    y = ((np.arange(h) + 0.5) * mm)[:, None]
+    a = math.radians(angle_deg)
+    u, v = x * math.cos(a) + y * math.sin(a), -x * math.sin(a) + y * math.cos(a)
+    z = np.cos(2 * np.pi * u / wavelength_mm)
+    if kind == "2d":
+        z = z * np.cos(2 * np.pi * v / wavelength_mm)
+    elif kind != "1d":
+        raise GelsimError(f"unknown wave {kind!r}; use '1d' or '2d'")
+    return (amplitude_mm * np.broadcast_to(z, (h, w))).astype(np.float32)
+
+
+def central_region(prof, px_per_period: int) -> tuple[slice, slice]:
+    """The central half of the pad, a whole number of periods across."""
+    h, w = prof.shape
+    nh = max(1, (h // 2) // px_per_period) * px_per_period
+    nw = max(1, (w // 2) // px_per_period) * px_per_period
+    r0, c0 = (h - nh) // 2, (w - nw) // 2
+    return slice(r0, r0 + nh), slice(c0, c0 + nw)
+
+
+def theory(kind: str, s: float) -> tuple[float, float]:
+    """(contact fraction, kept fundamental) at p / p* = s: closed forms in 1-D, the tables in 2-D."""
+    if kind == "1d":
+        return float(contact_fraction_1d(s)), float(kept_relief_1d(s))
+    a = np.zeros(1, np.float32)
+    return float(contact_fraction(np.float32([s]), a)[0]), float(kept_relief(np.float32([s]), a)[0])
+
+
+def press_wave(base, fidelity, kind: str, wavelength_mm: float, s_target: float, *,
+               px_per_period: int = WAVE_PX_PER_PERIOD, width_px: int = 192, height_px: int = 128,
+               angle_deg: float = 0.0) -> dict:
+    """Press a wave of steepness WAVE_SLOPE over the whole flat pad at the mean pressure s_target p*;
+    measure over the central region the contact fraction, the kept fundamental (the depth map
+    regressed on the wave) and the local mean pressure, and the theory at that local s (the pad's
+    pressure is not uniform: a layer pressed by a flat punch carries more at its centre)."""
+    from . import press  # the package is initialised by the time this runs
+    from .layer import effective_modulus_mpa
+
+    prof = wave_profile(base, wavelength_mm, px_per_period, width_px, height_px)
+    h = WAVE_SLOPE * wavelength_mm / (2 * np.pi)
+    pstar = complete_contact_pressure_mpa(effective_modulus_mpa(prof.gel), h, wavelength_mm, 1 if kind == "1d" else 2)
+    fw, fh = prof.field_mm
+    z = wave_field(prof, kind, wavelength_mm, h, angle_deg)
+    im = press(z, prof, fidelity, force_n=s_target * pstar * fw * fh, texture_mm=wavelength_mm)
+    region = central_region(prof, px_per_period)
+    d = im.depth_mm[region].astype(np.float64)
+    zz = z[region].astype(np.float64)
+    zz = zz - zz.mean()
+    kept = float(((d - d.mean()) * zz).sum() / (zz * zz).sum())
+    cf = float(im.contact_mask[region].mean())
+    pressure = im.pressure_mpa()
+    s = float(pressure[region].mean()) / pstar if pressure is not None else s_target
+    cf_th, kept_th = theory(kind, s)
+    return {"kind": kind, "wavelength_mm": wavelength_mm, "s_target": s_target, "s": s, "contact_fraction": cf,
+            "kept": kept, "theory_contact_fraction": cf_th, "theory_kept": kept_th,
+            "work_px_per_period": px_per_period * fidelity.imprint_scale}
