@@ -58,11 +58,16 @@ class GenerateConfig:
     fidelity: str = "balanced"
     seed: int = 0
     format: str = "h264"
+    units: int = 0          # sensor units drawn from the profile's [unit_variation]; 0 = the profile itself
 
     def options(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
 
+
+# Sensor units a dataset may draw: each needs its own renderer in every worker (0.2-0.3 s and ~60 MB
+# at 960x720), so a few dozen is plenty for variety and a thousand the most that makes sense.
+MAX_UNITS = 1000
 
 PRESETS: dict[str, dict[str, Any]] = {
     # A first look in about a minute on 2 cores: 10 fabrics x 3 sequences at 320x240.
@@ -84,6 +89,7 @@ class SequenceSpec:
     num_frames: int
     precontact_frames: int | None
     split: str
+    unit: int = -1          # the sensor unit (``GenerateConfig.units``), -1 = the profile itself
 
     def video_stem(self) -> str:
         return f"videos/f{self.fabric_id:03d}/{self.id}"
@@ -200,9 +206,26 @@ def plan(config: GenerateConfig, catalog_size: int) -> list[SequenceSpec]:
                 if pre >= frames:
                     raise GelsimError(f"--precontact {config.precontact[0]}-{config.precontact[1]} leaves no contact "
                                       f"frames in a {frames}-frame sequence; lower it below the frame count")
+            unit = len(specs) % config.units if config.units else -1  # units in turn over the whole plan
             specs.append(SequenceSpec(id=f"f{fid:03d}-s{i:04d}", fabric_id=fid, index=i, action=actions[i],
-                                      seed=s, num_frames=frames, precontact_frames=pre, split=str(split_of[i])))
+                                      seed=s, num_frames=frames, precontact_frames=pre, split=str(split_of[i]),
+                                      unit=unit))
     return specs
+
+
+def unit_seed(seed: int, unit: int) -> int:
+    """The draw seed of sensor unit ``unit`` of the dataset seeded ``seed`` (its own stream)."""
+    return int(np.random.SeedSequence([seed, unit, 0x0D17]).generate_state(1)[0])
+
+
+def unit_profiles(config: GenerateConfig, profile) -> list:
+    """The ``config.units`` sensor units drawn from ``profile`` (empty for units = 0)."""
+    from .units import draw_unit
+
+    if config.units and profile.unit_variation is None:
+        raise GelsimError(f"--units {config.units}: profile {profile.name!r} has no [unit_variation] section; add one "
+                          "(see assets/sensors/vitac.toml) or drop --units")
+    return [draw_unit(profile, unit_seed(config.seed, k)) for k in range(config.units)]
 
 
 # ---------------------------------------------------------------- files
@@ -284,7 +307,23 @@ def _worker_init(config: GenerateConfig, root: str) -> None:
     _WORKER.update(config=config, root=Path(root), catalog=load_catalog(), profile=profile, fidelity=fidelity,
                    ranges=load_motion_ranges(),
                    renderer=Renderer(profile, fidelity.render_backend, supersample=fidelity.supersample,
-                                     seed=config.seed))
+                                     seed=config.seed),
+                   units=unit_profiles(config, profile), unit_renderers={})
+
+
+def _unit(k: int):
+    """(profile, renderer) of sensor unit ``k`` in this worker (-1: the profile itself); a unit's renderer
+    is built once per worker (0.2-0.3 s at 960x720)."""
+    w = _WORKER
+    if k < 0:
+        return w["profile"], w["renderer"]
+    if k not in w["unit_renderers"]:
+        from .optics import Renderer
+
+        fid = w["fidelity"]
+        w["unit_renderers"][k] = Renderer(w["units"][k], fid.render_backend, supersample=fid.supersample,
+                                          seed=w["config"].seed)
+    return w["units"][k], w["unit_renderers"][k]
 
 
 def generate_sequence(spec: SequenceSpec) -> dict:
@@ -296,7 +335,7 @@ def generate_sequence(spec: SequenceSpec) -> dict:
     w = _WORKER
     config: GenerateConfig = w["config"]
     root: Path = w["root"]
-    profile, fidelity = w["profile"], w["fidelity"]
+    (profile, renderer), fidelity = _unit(spec.unit), w["fidelity"]
     fabric = w["catalog"][spec.fabric_id]
     t0 = time.perf_counter()
     motion = sample_motion(spec.action, spec.seed,
@@ -309,7 +348,7 @@ def generate_sequence(spec: SequenceSpec) -> dict:
     encode_s = 0.0
     with VideoWriter(vpath, fmt=config.format, fps=profile.image.fps_hz) as writer:
         for frame in render_sequence(fabric, motion, profile, fidelity, seed=spec.seed,
-                                     renderer=w["renderer"], sensor_seed=config.seed, out=out):
+                                     renderer=renderer, sensor_seed=config.seed, out=out):
             te = stage_clock()
             writer.write(frame)
             encode_s += stage_clock() - te
@@ -331,6 +370,8 @@ def generate_sequence(spec: SequenceSpec) -> dict:
                   peak_force_n=float(np.max(out.labels["normal_force_n"])),
                   timings_s={k: round(v, 4) for k, v in timings.items()},
                   seconds=round(time.perf_counter() - t0, 3))
+    if spec.unit >= 0:
+        record["unit"] = spec.unit
     atomic_write_json(root / "records" / f"{spec.id}.json", record)
     return record
 
@@ -346,7 +387,7 @@ def _manifest(config: GenerateConfig, profile, catalog, specs, records: dict[str
     seqs = []
     for s in specs:
         r = records.get(s.id)
-        seqs.append({k: r[k] for k in _MANIFEST_KEYS} if r else
+        seqs.append({k: r[k] for k in _MANIFEST_KEYS + (("unit",) if "unit" in (r or {}) else ())} if r else
                     dict(id=s.id, fabric_id=s.fabric_id, action=s.action, num_frames=s.num_frames, split=s.split))
     fabric_ids = sorted({s.fabric_id for s in specs})
     return {
@@ -359,8 +400,18 @@ def _manifest(config: GenerateConfig, profile, catalog, specs, records: dict[str
         "fabrics": [{"id": f.id, "name": f.name, "family": f.family, "material": f.material}
                     for f in (catalog[i] for i in fabric_ids)],
         "splits": {k: sum(1 for s in specs if s.split == k) for k in SPLITS},
+        **(_units_section(config, profile) if config.units else {}),
         "sequences": seqs,
     }
+
+
+def _units_section(config: GenerateConfig, profile) -> dict:
+    """The manifest's record of the sensor units: the ranges drawn from and each unit's parameters."""
+    from .units import unit_record, variation_ranges
+
+    return {"unit_variation": variation_ranges(profile),
+            "units": [unit_record(u) | {"unit": k, "seed": unit_seed(config.seed, k)}
+                      for k, u in enumerate(unit_profiles(config, profile))]}
 
 
 def _clean_partials(root: Path) -> None:
@@ -412,6 +463,9 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
     catalog = load_catalog()
     profile = resolve_profile(config)
     get_fidelity(config.fidelity)
+    if not 0 <= config.units <= MAX_UNITS:
+        raise GelsimError(f"--units {config.units} is out of range; give 0 (the profile itself) to {MAX_UNITS}")
+    unit_profiles(config, profile)  # a profile without [unit_variation] fails here, before anything is written
     specs = plan(config, len(catalog))
     root = Path(out)
     _check_out_dir(root, config.options())

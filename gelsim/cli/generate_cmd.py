@@ -41,6 +41,10 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, metavar="N", help="dataset seed [default: 0]")
     p.add_argument("--workers", type=int, metavar="N", default=None, help="worker processes [default: all cores]")
     p.add_argument("--format", choices=["h264", "ffv1", "png"], help="video format: H.264 .mp4, lossless FFV1 .mkv, or PNG frames [default: h264]")
+    p.add_argument("--units", type=int, metavar="K",
+                   help="draw K sensor units from the profile's [unit_variation] (LEDs, gel, markers, camera; "
+                        "ranges and sources in the profile) and give each sequence one in turn; the manifest "
+                        "records every unit's parameters [default: 0, the profile itself]")
     p.add_argument("--dry-run", action="store_true", help="print the plan with estimated time and disk size; write nothing")
     p.add_argument("--no-previews", action="store_true", help="skip the preview images")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout (no progress bar)")
@@ -93,6 +97,10 @@ def config_from_args(args: argparse.Namespace):
         values["seed"] = args.seed
     if args.format is not None:
         values["format"] = args.format
+    if args.units is not None:
+        if not 0 <= args.units <= 1000:
+            raise GelsimError(f"--units {args.units} is out of range; give 0 (the profile itself) to 1000")
+        values["units"] = args.units
     cfg = GenerateConfig(**values)
     if cfg.precontact is not None and cfg.precontact[1] >= cfg.frames[0]:
         raise GelsimError(f"--precontact {cfg.precontact[0]}-{cfg.precontact[1]} leaves no contact frames in the "
@@ -156,6 +164,7 @@ def _dry_run(cfg, args) -> int:
 
     catalog = load_catalog()
     profile = dataset.resolve_profile(cfg)
+    dataset.unit_profiles(cfg, profile)  # a profile without [unit_variation] fails here
     specs = dataset.plan(cfg, len(catalog))
     frames = sum(s.num_frames for s in specs)
     w, h = profile.image.width_px, profile.image.height_px
@@ -170,6 +179,11 @@ def _dry_run(cfg, args) -> int:
     plan = {"out": str(args.out), "options": cfg.options(), "sequences": len(specs), "frames": frames,
             "actions": counts, "splits": splits, "resolution": [w, h], "workers": workers,
             "estimated_seconds": round(est_s, 1), "estimated_bytes": nbytes}
+    if cfg.units:
+        from ..units import variation_ranges
+
+        plan["units"] = cfg.units
+        plan["unit_variation"] = variation_ranges(profile)
     if args.json:
         print_json(plan)
     else:

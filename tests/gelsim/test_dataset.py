@@ -68,6 +68,23 @@ def test_two_workers_give_identical_dataset(tiny, tmp_path):
     assert _contents(out) == _contents(tiny)
 
 
+def test_sensor_units_are_drawn_recorded_and_deterministic(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert _gen(a, "--units", "2") == 0
+    assert _gen(b, "--units", "2", workers=2) == 0
+    assert _contents(a) == _contents(b)          # same units and frames for any number of workers
+    m = load_manifest(a)
+    assert m["options"]["units"] == 2 and len(m["units"]) == 2 and m["unit_variation"]
+    assert [s["unit"] for s in m["sequences"]] == [k % 2 for k in range(len(m["sequences"]))]
+    u0, u1 = m["units"]
+    assert u0["seed"] != u1["seed"] and u0["lights"] != u1["lights"]   # two different units
+    # a unit's frames differ from the plain profile's
+    plain = tmp_path / "plain"
+    assert _gen(plain) == 0
+    shas = {s["id"]: s["sha256"]["video"] for s in load_manifest(plain)["sequences"]}
+    assert any(s["sha256"]["video"] != shas[s["id"]] for s in m["sequences"])
+
+
 def test_rerun_is_a_no_op(tiny):
     before = {p: p.stat().st_mtime_ns for p in tiny.rglob("*.mp4")}
     assert _gen(tiny) == 0
@@ -150,6 +167,8 @@ def test_verify_stats_bad_options_one_line_exit_2(tiny, capsys, args, msg):
     (["--actions", "7:1"], "--actions"),
     (["--frames", "36-25"], "inverted"),
     (["--precontact", "30-40"], "precontact"),
+    (["--units", "2", "--profile", "gelsight-r15"], "unit_variation"),
+    (["--units", "-1"], "--units"),
 ])
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, args, msg):
     out = tmp_path / "never"
