@@ -263,8 +263,10 @@ def _prepare(scene: Scene, motion: Motion, profile: SensorProfile, catalog):
     """(fabric or None, surface, patch or None, fabric seconds)."""
     t0 = time.perf_counter()
     if scene.object == "sphere":
+        from .scene import Sphere
+
         surface, patch = sphere_scene(motion, profile)
-        return None, surface, patch, time.perf_counter() - t0
+        return Sphere(SPHERE_DIAMETER_MM, friction=SPHERE_FRICTION), surface, patch, time.perf_counter() - t0
     fabric = catalog[int(scene.object)]
     surface = Surface.from_fabric(fabric, motion, profile, mm_per_px=PHYSICS_MM_PER_PX, seed=scene.seed)
     return fabric, surface, None, time.perf_counter() - t0

@@ -153,23 +153,14 @@ class Surface:
     @classmethod
     def from_fabric(cls, fabric, motion: Motion, profile: SensorProfile, *, mm_per_px: float = 0.2,
                     seed: int = 0) -> "Surface":
-        """The fabric's coarse heightfield over the sensor's travel plus its field (circumscribed
-        circle, so twist and tilt stay covered), rotated by ``motion.fabric_rotation_deg``."""
-        from .fabrics import heightfield  # imported here: the fabric module is optional for the physics
+        """A catalog fabric's surface over the motion's travel (kept for the benchmarks' callers;
+        the pipeline builds any object's with :func:`gelsim.scene.physics_surface`)."""
+        from .scene import FabricObject, physics_surface
 
-        xmin, ymin, xmax, ymax = motion.travel_bounds_mm()
-        fw, fh = profile.field_mm
-        r = 0.5 * math.hypot(fw, fh) + 2 * mm_per_px  # 2 cells: the pad edge must not meet the patch edge
-        # On the fabric's pixel grid (heightfield snaps its origin to multiples of mm_per_px).
-        x0 = math.floor((xmin - r) / mm_per_px) * mm_per_px
-        y0 = math.floor((ymin - r) / mm_per_px) * mm_per_px
-        w = int(math.ceil((xmax + r - x0) / mm_per_px)) + 1
-        h = int(math.ceil((ymax + r - y0) / mm_per_px)) + 1
-        hf = heightfield(fabric, x0_mm=x0, y0_mm=y0, width_px=w, height_px=h, mm_per_px=mm_per_px,
-                         seed=seed, rotation_deg=motion.fabric_rotation_deg)
-        hf = np.asarray(hf, dtype=np.float32)
-        return cls(np.maximum(hf - min(float(hf.min()), 0.0), 0.0), float(mm_per_px), (x0, y0),
-                   float(fabric.friction))
+        if mm_per_px != 0.2:
+            raise GelsimError("Surface.from_fabric builds the physics grid (0.2 mm); use gelsim.scene.travel_patch "
+                              "for another resolution")
+        return physics_surface(FabricObject(fabric), motion, profile, seed=seed)
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ to :func:`gelsim.gel.press`. Grids follow the sensor frame (origin at the image 
 """
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -19,17 +20,15 @@ from .errors import GelsimError
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
 
 
-def _grid(profile, scale: float, center_mm) -> tuple[np.ndarray, np.ndarray, float]:
-    """Pixel-centre coordinates (x row vector, y column vector) relative to the centre, mm."""
+def _field(profile, scale: float) -> tuple[float, float, int, int, float]:
+    """(x0, y0, width, height, dx) of the sensor's field at ``scale`` times its resolution, in the
+    sensor frame (origin at the image centre, pixel centres)."""
     if not (0 < scale <= 8 and math.isfinite(scale)):
         raise GelsimError(f"scale {scale} is out of range; give 0 < scale <= 8")
     h, w = profile.shape
     hs, ws = max(1, round(h * scale)), max(1, round(w * scale))
     dx = profile.image.mm_per_px * w / ws
-    cx, cy = (float(c) for c in center_mm)
-    x = (np.arange(ws) - (ws - 1) / 2.0) * dx - cx
-    y = (np.arange(hs) - (hs - 1) / 2.0) * dx - cy
-    return x[None, :], y[:, None], dx
+    return -(ws - 1) / 2.0 * dx, -(hs - 1) / 2.0 * dx, ws, hs, dx
 
 
 def _positive(name: str, value, unit: str = "mm") -> float:
@@ -38,15 +37,19 @@ def _positive(name: str, value, unit: str = "mm") -> float:
     return float(value)
 
 
+def _on_field(obj, profile, scale: float) -> np.ndarray:
+    x0, y0, w, h, dx = _field(profile, scale)
+    return obj.heights(x0, y0, w, h, dx)
+
+
 def sphere(diameter_mm: float, profile, *, center_mm=(0.0, 0.0), scale: float = 1.0) -> np.ndarray:
     """A rigid sphere of ``diameter_mm`` over the point ``center_mm`` (x, y) of the gel.
 
     Protrusion ``sqrt(R^2 - r^2)`` inside its outline, 0 outside: float32 (H, W), mm.
     """
-    r = _positive("diameter_mm", diameter_mm) / 2.0
-    x, y, _ = _grid(profile, scale, center_mm)
-    r2 = x * x + y * y
-    return np.sqrt(np.maximum(r * r - r2, 0.0)).astype(np.float32)
+    from .scene import Sphere
+
+    return _on_field(Sphere(_positive("diameter_mm", diameter_mm), tuple(center_mm)), profile, scale)
 
 
 def cylinder(diameter_mm: float, profile, *, length_mm: float | None = None, angle_deg: float = 0.0,
@@ -57,19 +60,13 @@ def cylinder(diameter_mm: float, profile, *, length_mm: float | None = None, ang
     None means longer than the field of view. Protrusion ``sqrt(R^2 - d^2)`` with ``d`` the
     distance from the axis, 0 beyond the ends: float32 (H, W), mm.
     """
-    r = _positive("diameter_mm", diameter_mm) / 2.0
-    if length_mm is not None:
-        length_mm = _positive("length_mm", length_mm)
+    from .scene import Cylinder
+
     if not math.isfinite(angle_deg):
         raise GelsimError(f"angle_deg = {angle_deg} is not finite; give an angle in degrees")
-    x, y, _ = _grid(profile, scale, center_mm)
-    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
-    along = x * c + y * s
-    across = -x * s + y * c
-    out = np.sqrt(np.maximum(r * r - across * across, 0.0))
-    if length_mm is not None:
-        out = np.where(np.abs(along) <= length_mm / 2.0, out, 0.0)
-    return np.ascontiguousarray(np.broadcast_to(out, (y.shape[0], x.shape[1])), dtype=np.float32)
+    obj = Cylinder(_positive("diameter_mm", diameter_mm), None if length_mm is None else
+                   _positive("length_mm", length_mm), float(angle_deg), tuple(center_mm))
+    return _on_field(obj, profile, scale)
 
 
 def mesh(path: str | Path, profile, *, center_mm=(0.0, 0.0), scale: float = 1.0) -> np.ndarray:
@@ -79,24 +76,46 @@ def mesh(path: str | Path, profile, *, center_mm=(0.0, 0.0), scale: float = 1.0)
     height of the mesh's lower surface below its top, ``z_max - z_bottom(x, y)``, 0 outside
     its footprint: float32 (H, W), mm (triangles rasterised at pixel centres).
     """
+    from .scene import Mesh
+
+    load_mesh(path)  # a bad file fails here, with its own message
+    return _on_field(Mesh(str(path), tuple(center_mm)), profile, scale)
+
+
+@functools.lru_cache(maxsize=8)
+def _load_mesh_cached(path: str, mtime_ns: int):
     import trimesh
 
-    path = Path(path)
-    if not path.is_file():
-        raise GelsimError(f"indenter mesh {path} not found; give an existing .stl/.obj file")
     try:
-        m = trimesh.load(str(path), force="mesh")
+        m = trimesh.load(path, force="mesh")
     except Exception as e:  # trimesh raises many kinds of errors on bad files
         raise GelsimError(f"cannot read mesh {path} ({e}); give a valid .stl/.obj file") from None
     if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
         raise GelsimError(f"mesh {path} has no triangles; give a mesh with faces")
-    x, y, _ = _grid(profile, scale, (0.0, 0.0))
+    return m
+
+
+def load_mesh(path: str | Path):
+    """The mesh at ``path`` (trimesh.Trimesh, units mm), read once per file version."""
+    path = Path(path)
+    if not path.is_file():
+        raise GelsimError(f"indenter mesh {path} not found; give an existing .stl/.obj file")
+    return _load_mesh_cached(str(path), path.stat().st_mtime_ns)
+
+
+def mesh_heights(m, xs: np.ndarray, ys: np.ndarray, rotation_deg: float = 0.0) -> np.ndarray:
+    """How far the lower surface of mesh ``m`` stands below its top (``z_max - z_bottom``) over the
+    grid ``xs`` x ``ys`` (mm, relative to the mesh's x-y bounding-box centre; the mesh turned by
+    ``rotation_deg``), 0 outside its footprint: float32 (len(ys), len(xs))."""
     (x0, y0, z0), (x1, y1, z1) = m.bounds
-    cx, cy = (float(c) for c in center_mm)
     tri = np.array(m.triangles, dtype=np.float64)  # (T, 3, 3), a writable copy
-    tri[:, :, 0] += cx - (x0 + x1) / 2.0
-    tri[:, :, 1] += cy - (y0 + y1) / 2.0
-    zb = _zbuffer_min(tri, x.ravel(), y.ravel())
+    tri[:, :, 0] -= (x0 + x1) / 2.0
+    tri[:, :, 1] -= (y0 + y1) / 2.0
+    if rotation_deg:
+        c, s = math.cos(math.radians(rotation_deg)), math.sin(math.radians(rotation_deg))
+        x, y = tri[:, :, 0].copy(), tri[:, :, 1].copy()
+        tri[:, :, 0], tri[:, :, 1] = c * x - s * y, s * x + c * y
+    zb = _zbuffer_min(tri, np.asarray(xs, np.float64), np.asarray(ys, np.float64))
     return np.where(np.isfinite(zb), z1 - zb, 0.0).astype(np.float32)
 
 

@@ -1,6 +1,6 @@
-"""One tactile sequence end to end: fabric -> contact -> gel -> optics.
+"""One tactile sequence end to end: touched object -> contact -> gel -> optics.
 
-:func:`render_sequence` strings the stages together for one (fabric, motion)
+:func:`render_sequence` strings the stages together for one (object, motion)
 pair and yields frames one at a time (constant memory), then returns the
 per-frame labels.
 
@@ -40,17 +40,14 @@ import numpy as np
 
 from .contact import ContactFrames, Surface, simulate
 from .errors import GelsimError
-from .fabrics import Fabric, heightfield
 from .fidelity import Fidelity
-from .gel import FabricSupport, press
+from .gel import press
 from .markers import displace, marker_grid, rest_markers
 from .motion import Motion
 from .optics import Renderer
+from .scene import PHYSICS_MM_PER_PX, HeightPatch, TouchedObject, as_object, physics_surface, travel_patch  # noqa: F401
 from .sensor import SensorProfile
 
-# Physics sees the fabric at this coarse cell size; finer texture is the gel model's
-# business (REFERENCES: hfield contacts are capped at 50 per pair, so finer cells buy nothing).
-PHYSICS_MM_PER_PX = 0.2
 # Shear and twist terms that move no marker by more than this are skipped, px. A marker edge
 # moving by 0.005 px changes its anti-aliased coverage by 0.5% of a pixel: at most about
 # 0.6 DN (darkness 0.85 of a ~140 DN gel), below half a quantisation step.
@@ -75,56 +72,8 @@ class StageTimer:
         return t1
 
 
-@dataclass
-class FabricPatch:
-    """A fabric heightfield patch in the world (fabric) frame covering a sequence's travel."""
-    heights_mm: np.ndarray   # float32 (h, w)
-    origin_mm: tuple[float, float]
-    mm_per_px: float
-
-    @classmethod
-    def for_motion(cls, fabric: Fabric, motion: Motion, profile: SensorProfile, mm_per_px: float,
-                   seed: int) -> "FabricPatch":
-        xmin, ymin, xmax, ymax = motion.travel_bounds_mm()
-        fw, fh = profile.field_mm
-        # The sensor rotates (twist) and tilts: cover its field's circumscribed circle.
-        r = 0.5 * math.hypot(fw, fh) + 2 * mm_per_px
-        x0, y0 = xmin - r, ymin - r
-        w = int(math.ceil((xmax - xmin + 2 * r) / mm_per_px)) + 1
-        h = int(math.ceil((ymax - ymin + 2 * r) / mm_per_px)) + 1
-        hf = heightfield(fabric, x0_mm=x0, y0_mm=y0, width_px=w, height_px=h, mm_per_px=mm_per_px,
-                         seed=seed, rotation_deg=motion.fabric_rotation_deg)
-        return cls(hf.astype(np.float32, copy=False), (x0, y0), mm_per_px)
-
-    def sample(self, shape: tuple[int, int], sensor_mm_per_px: float, x_mm: float, y_mm: float,
-               yaw_deg: float, tilt_deg: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
-        """Protrusion map ``float32 shape`` (H, W) seen by a sensor at (x, y, yaw), mm >= 0.
-
-        Sensor pixel (u, v) sits at sensor-frame point ((u - (W-1)/2) s, (v - (H-1)/2) s);
-        rotating by yaw and translating by (x, y) gives the world point, which maps to
-        patch pixel ((xw - x0)/p, (yw - y0)/p). warpAffine with WARP_INVERSE_MAP takes
-        exactly that dst->src affine map.
-        """
-        H, W = shape
-        s, p = sensor_mm_per_px, self.mm_per_px
-        c, sn = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
-        cu, cv = (W - 1) / 2.0, (H - 1) / 2.0
-        x0, y0 = self.origin_mm
-        a11, a12 = c * s / p, -sn * s / p
-        a21, a22 = sn * s / p, c * s / p
-        b1 = (x_mm - x0) / p - a11 * cu - a12 * cv
-        b2 = (y_mm - y0) / p - a21 * cu - a22 * cv
-        M = np.array([[a11, a12, b1], [a21, a22, b2]], dtype=np.float64)
-        out = cv2.warpAffine(self.heights_mm, M, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                             borderMode=cv2.BORDER_REPLICATE)
-        if tilt_deg[0] or tilt_deg[1]:
-            # A tilted sensor meets one side of the fabric first: the fabric appears raised
-            # on the side the gel leans towards (small angles: a plane of slope tan(tilt)).
-            xs = (np.arange(W, dtype=np.float32) - cu) * s
-            ys = (np.arange(H, dtype=np.float32) - cv) * s
-            out += np.float32(math.tan(math.radians(tilt_deg[1]))) * xs[None, :]
-            out += np.float32(math.tan(math.radians(tilt_deg[0]))) * ys[:, None]
-        return out
+# The image-resolution heights of a sequence's object (kept under its old name for callers).
+FabricPatch = HeightPatch
 
 
 @dataclass
@@ -162,36 +111,31 @@ def contact_location(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             np.array([x - 0.5, y - 0.5, x + w - 0.5, y + h - 0.5]))
 
 
-def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *,
+def render_sequence(obj: TouchedObject, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *,
                     seed: int, renderer: Renderer | None = None, sensor_seed: int = 0,
                     out: SequenceOutput | None = None, shortcuts: bool = True,
                     outputs: Collection[str] = OUTPUTS, contact: ContactFrames | None = None,
-                    surface: Surface | None = None, patch: FabricPatch | None = None,
-                    support: FabricSupport | None = None,
-                    texture_mm: float | None = None) -> Iterator[np.ndarray | None]:
+                    surface: Surface | None = None, patch: HeightPatch | None = None) -> Iterator[np.ndarray | None]:
     """Yield the ``uint8 (H, W, 3)`` frames of one sequence; fills ``out`` with labels and timings.
 
-    ``seed`` drives everything random in this sequence (fabric irregularity phase, camera
+    ``obj``: what the sensor touches (a :class:`gelsim.scene.TouchedObject`, or a catalog Fabric).
+    ``seed`` drives everything random in this sequence (the object's irregularity phase, camera
     noise); ``sensor_seed`` fixes what belongs to the physical sensor and stays the same
     across a dataset (background illumination field, printed marker jitter).
 
     ``shortcuts``: skip work frames do not need (see the module docstring); False computes
     everything on every frame. ``outputs``: any of ``"frames"``, ``"imprint"`` (labels
-    ``indentation_mm``, ``contact_area_mm2``, ``contact_centroid_px``, ``contact_bbox_px``: see
-    :func:`contact_location`) and ``"markers"`` (``markers_xy_px``,
+    ``indentation_mm``, ``contact_area_mm2``) and ``"markers"`` (``markers_xy_px``,
     ``markers_rest_px``); without ``"frames"`` the generator yields None per frame. The
     contact labels are always computed. ``contact``: a finished contact simulation of this
     motion to reuse (no physics run; e.g. to compare fidelity levels on the same contact).
-    ``surface`` and ``patch``: the physics heightfield and the image-resolution patch of an
-    object other than a catalog fabric (then ``fabric`` may be None; the object is rigid and
-    smooth unless ``support`` and ``texture_mm`` are given, see :func:`gelsim.gel.press`).
+    ``surface`` and ``patch``: the object's physics surface and image-resolution heights when
+    already built (default: :func:`gelsim.scene.physics_surface` and :func:`gelsim.scene.travel_patch`).
     """
     outputs = frozenset(outputs)
     if not outputs <= OUTPUTS:
         raise GelsimError(f"unknown outputs {sorted(outputs - OUTPUTS)}; choose from {sorted(OUTPUTS)}")
-    if fabric is None and (patch is None or (surface is None and contact is None)):
-        raise GelsimError("render_sequence without a fabric needs patch= and surface= (or contact=); "
-                          "pass a catalog fabric or both heightfields")
+    obj = as_object(obj)
     if contact is not None and len(contact.normal_force_n) != motion.num_frames:
         raise GelsimError(f"contact has {len(contact.normal_force_n)} frames, the motion {motion.num_frames}; "
                           "simulate this motion")
@@ -205,16 +149,15 @@ def render_sequence(fabric: Fabric | None, motion: Motion, profile: SensorProfil
                                         seed=sensor_seed)
     if contact is None:
         if surface is None:
-            surface = Surface.from_fabric(fabric, motion, profile, mm_per_px=PHYSICS_MM_PER_PX, seed=seed)
+            surface = physics_surface(obj, motion, profile, seed=seed)
         t = timer.add("fabric", t)
         contact = simulate(motion, surface, profile, fidelity)
         t = timer.add("physics", t)
-    if fabric is not None:
-        support, texture_mm = fabric.support(), fabric.texture_mm
+    support, texture_mm = obj.support(), obj.texture_mm
     # The image-resolution patch is the costliest fabric step: built only if some frame presses.
     touches = bool(np.any(contact.in_contact & (contact.normal_force_n > 0)))
     if patch is None and want_imprint and (touches or not shortcuts):
-        patch = FabricPatch.for_motion(fabric, motion, profile, profile.image.mm_per_px, seed)
+        patch = travel_patch(obj, motion, profile, profile.image.mm_per_px, seed=seed)
     t = timer.add("fabric", t)
 
     markers_on = profile.markers.enabled and want_markers

@@ -164,7 +164,7 @@ def test_bad_outputs_and_missing_object(setup):
     profile, fid, fabric, motions, contacts = setup
     with pytest.raises(GelsimError, match="unknown outputs"):
         list(render_sequence(fabric, motions["press"], profile, fid, seed=0, outputs=("video",)))
-    with pytest.raises(GelsimError, match="without a fabric"):
+    with pytest.raises(GelsimError, match="not something the sensor can touch"):
         list(render_sequence(None, motions["press"], profile, fid, seed=0))
     short = dataclasses.replace(motions["press"], num_frames=T + 1)
     with pytest.raises(GelsimError, match="contact has"):

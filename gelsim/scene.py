@@ -1,0 +1,262 @@
+"""What the sensor touches: one typed object, from a catalog fabric to a sphere or a mesh.
+
+The pipeline's first stage. A :class:`TouchedObject` says everything the later stages need of the
+thing under the sensor:
+
+* ``heights(x0_mm, y0_mm, width_px, height_px, mm_per_px, seed=, rotation_deg=)``: its surface above
+  the base plane over any region of its own frame, at any resolution (mm, ``float32 (H, W)``, >= 0;
+  pixel (i, j) at ``(x0 + j p, y0 + i p)``), continuous across regions;
+* ``friction``: Coulomb's coefficient against the gel;
+* ``support()``: its compliance under a pressing gel (a fabric's cloth compression and yarn
+  flattening, :class:`gelsim.gel.FabricSupport`), or None for a rigid object;
+* ``texture_mm``: the scale of its texture, over which the imprint separates crowns from valleys
+  (None: a smooth object).
+
+:func:`travel_patch` builds its heights over a motion's travel for the physics (:func:`physics_surface`,
+a :class:`gelsim.contact.Surface`) and for the images (a :class:`HeightPatch` the sequence samples per
+frame). The contact simulation deals only in surfaces; nothing after this module knows about fabrics.
+
+Objects: :class:`FabricObject` (a catalog :class:`~gelsim.fabrics.Fabric`; a bare Fabric is accepted
+wherever an object is, see :func:`as_object`), :class:`Sphere`, :class:`Cylinder`, :class:`Mesh`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import cv2
+import numpy as np
+
+from .errors import GelsimError
+
+# Physics sees the object at this cell size; finer texture is the gel model's business (MuJoCo's
+# heightfield contacts are capped at 50 per pair, so finer cells buy nothing). contact.simulate
+# max-pools it further for speed (PHYSICS_CELL_MM there).
+PHYSICS_MM_PER_PX = 0.2
+# Friction of the smooth test objects against silicone: assumed, the middle of the 0.4-1.0 range
+# of materials on silicone rubber (REFERENCES).
+DEFAULT_FRICTION = 0.6
+
+
+@runtime_checkable
+class TouchedObject(Protocol):
+    """What the sensor touches (see the module docstring)."""
+    name: str
+    friction: float
+    texture_mm: float | None
+
+    def heights(self, x0_mm: float, y0_mm: float, width_px: int, height_px: int, mm_per_px: float, *,
+                seed: int = 0, rotation_deg: float = 0.0) -> np.ndarray: ...
+
+    def support(self): ...
+
+
+@dataclass(frozen=True)
+class FabricObject:
+    """A catalog fabric lying flat on a table."""
+    fabric: object
+
+    @property
+    def name(self) -> str:
+        return f"fabric {self.fabric.id} ({self.fabric.name})"
+
+    @property
+    def friction(self) -> float:
+        return float(self.fabric.friction)
+
+    @property
+    def texture_mm(self) -> float:
+        return self.fabric.texture_mm
+
+    def support(self):
+        return self.fabric.support()
+
+    def heights(self, x0_mm, y0_mm, width_px, height_px, mm_per_px, *, seed=0, rotation_deg=0.0):
+        from .fabrics import heightfield
+
+        return heightfield(self.fabric, x0_mm=x0_mm, y0_mm=y0_mm, width_px=width_px, height_px=height_px,
+                           mm_per_px=mm_per_px, seed=seed, rotation_deg=rotation_deg)
+
+
+def _grid(x0_mm, y0_mm, width_px, height_px, mm_per_px, center_mm, rotation_deg):
+    """Coordinates (x row vector, y column vector, or full arrays when rotated) relative to
+    ``center_mm``, in the object's own (unrotated) frame."""
+    x = x0_mm + np.arange(width_px) * mm_per_px - center_mm[0]
+    y = y0_mm + np.arange(height_px) * mm_per_px - center_mm[1]
+    if not rotation_deg:
+        return x[None, :], y[:, None]
+    c, s = math.cos(math.radians(rotation_deg)), math.sin(math.radians(rotation_deg))
+    X, Y = np.meshgrid(x, y)
+    return c * X + s * Y, -s * X + c * Y
+
+
+def _positive(name: str, value) -> float:
+    if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise GelsimError(f"{name} = {value!r} is not a positive number; give a value > 0 mm")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """A rigid ball of ``diameter_mm`` resting on the base plane at ``center_mm``."""
+    diameter_mm: float
+    center_mm: tuple[float, float] = (0.0, 0.0)
+    friction: float = DEFAULT_FRICTION
+    texture_mm = None
+
+    def __post_init__(self):
+        _positive("diameter_mm", self.diameter_mm)
+
+    @property
+    def name(self) -> str:
+        return f"sphere {self.diameter_mm:g} mm"
+
+    def support(self):
+        return None
+
+    def heights(self, x0_mm, y0_mm, width_px, height_px, mm_per_px, *, seed=0, rotation_deg=0.0):
+        r = self.diameter_mm / 2.0
+        x, y = _grid(x0_mm, y0_mm, width_px, height_px, mm_per_px, self.center_mm, 0.0)
+        return np.sqrt(np.maximum(r * r - (x * x + y * y), 0.0)).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """A rigid cylinder lying on its side, axis through ``center_mm`` at ``angle_deg`` from +x;
+    ``length_mm`` None is longer than any field."""
+    diameter_mm: float
+    length_mm: float | None = None
+    angle_deg: float = 0.0
+    center_mm: tuple[float, float] = (0.0, 0.0)
+    friction: float = DEFAULT_FRICTION
+    texture_mm = None
+
+    def __post_init__(self):
+        _positive("diameter_mm", self.diameter_mm)
+        if self.length_mm is not None:
+            _positive("length_mm", self.length_mm)
+
+    @property
+    def name(self) -> str:
+        return f"cylinder {self.diameter_mm:g} mm"
+
+    def support(self):
+        return None
+
+    def heights(self, x0_mm, y0_mm, width_px, height_px, mm_per_px, *, seed=0, rotation_deg=0.0):
+        r = self.diameter_mm / 2.0
+        x, y = _grid(x0_mm, y0_mm, width_px, height_px, mm_per_px, self.center_mm, self.angle_deg + rotation_deg)
+        out = np.sqrt(np.maximum(r * r - y * y, 0.0))
+        if self.length_mm is not None:
+            out = np.where(np.abs(x) <= self.length_mm / 2.0, out, 0.0)
+        return np.ascontiguousarray(np.broadcast_to(out, (height_px, width_px)), dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """Any mesh trimesh reads (units mm), its lowest side facing the gel, its x-y bounding box
+    centred on ``center_mm``: heights are how far its lower surface stands below its top."""
+    path: str
+    center_mm: tuple[float, float] = (0.0, 0.0)
+    friction: float = DEFAULT_FRICTION
+    texture_mm = None
+
+    @property
+    def name(self) -> str:
+        return f"mesh {Path(self.path).name}"
+
+    def support(self):
+        return None
+
+    def heights(self, x0_mm, y0_mm, width_px, height_px, mm_per_px, *, seed=0, rotation_deg=0.0):
+        from .indenters import load_mesh, mesh_heights
+
+        xs = x0_mm + np.arange(width_px) * mm_per_px - self.center_mm[0]
+        ys = y0_mm + np.arange(height_px) * mm_per_px - self.center_mm[1]
+        return mesh_heights(load_mesh(self.path), xs, ys, rotation_deg)
+
+
+def as_object(obj) -> TouchedObject:
+    """``obj`` as a TouchedObject: a catalog Fabric is wrapped, an object passes through."""
+    from .fabrics import Fabric
+
+    if isinstance(obj, Fabric):
+        return FabricObject(obj)
+    if isinstance(obj, TouchedObject):
+        return obj
+    raise GelsimError(f"{type(obj).__name__} is not something the sensor can touch; give a catalog fabric "
+                      "or a gelsim.scene object (Sphere, Cylinder, Mesh, FabricObject)")
+
+
+@dataclass
+class HeightPatch:
+    """An object's heights over a region of its frame: ``heights_mm`` float32 (h, w), pixel (i, j)
+    at ``origin_mm + (j, i) * mm_per_px``."""
+    heights_mm: np.ndarray
+    origin_mm: tuple[float, float]
+    mm_per_px: float
+
+    def sample(self, shape: tuple[int, int], sensor_mm_per_px: float, x_mm: float, y_mm: float,
+               yaw_deg: float, tilt_deg: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+        """Protrusion map ``float32 shape`` (H, W) seen by a sensor at (x, y, yaw), mm >= 0.
+
+        Sensor pixel (u, v) sits at sensor-frame point ((u - (W-1)/2) s, (v - (H-1)/2) s);
+        rotating by yaw and translating by (x, y) gives the world point, which maps to
+        patch pixel ((xw - x0)/p, (yw - y0)/p). warpAffine with WARP_INVERSE_MAP takes
+        exactly that dst->src affine map.
+        """
+        H, W = shape
+        s, p = sensor_mm_per_px, self.mm_per_px
+        c, sn = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+        cu, cv = (W - 1) / 2.0, (H - 1) / 2.0
+        x0, y0 = self.origin_mm
+        a11, a12 = c * s / p, -sn * s / p
+        a21, a22 = sn * s / p, c * s / p
+        b1 = (x_mm - x0) / p - a11 * cu - a12 * cv
+        b2 = (y_mm - y0) / p - a21 * cu - a22 * cv
+        M = np.array([[a11, a12, b1], [a21, a22, b2]], dtype=np.float64)
+        out = cv2.warpAffine(self.heights_mm, M, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                             borderMode=cv2.BORDER_REPLICATE)
+        if tilt_deg[0] or tilt_deg[1]:
+            # A tilted sensor meets one side of the object first: it appears raised on the side the
+            # gel leans towards (small angles: a plane of slope tan(tilt)).
+            xs = (np.arange(W, dtype=np.float32) - cu) * s
+            ys = (np.arange(H, dtype=np.float32) - cv) * s
+            out += np.float32(math.tan(math.radians(tilt_deg[1]))) * xs[None, :]
+            out += np.float32(math.tan(math.radians(tilt_deg[0]))) * ys[:, None]
+        return out
+
+
+def travel_patch(obj: TouchedObject, motion, profile, mm_per_px: float, *, seed: int,
+                 snap: bool = False) -> HeightPatch:
+    """``obj``'s heights over the sensor's travel in ``motion`` plus its field's circumscribed circle
+    (so twist and tilt stay covered) and two cells, at ``mm_per_px``, turned by the motion's
+    ``fabric_rotation_deg``. ``snap``: put the origin on the object's own grid of ``mm_per_px``
+    cells (the physics grid: a max-pool then sees the same cells wherever the sensor goes)."""
+    xmin, ymin, xmax, ymax = motion.travel_bounds_mm()
+    fw, fh = profile.field_mm
+    r = 0.5 * math.hypot(fw, fh) + 2 * mm_per_px
+    if snap:
+        x0 = math.floor((xmin - r) / mm_per_px) * mm_per_px
+        y0 = math.floor((ymin - r) / mm_per_px) * mm_per_px
+        w = int(math.ceil((xmax + r - x0) / mm_per_px)) + 1
+        h = int(math.ceil((ymax + r - y0) / mm_per_px)) + 1
+    else:
+        x0, y0 = xmin - r, ymin - r
+        w = int(math.ceil((xmax - xmin + 2 * r) / mm_per_px)) + 1
+        h = int(math.ceil((ymax - ymin + 2 * r) / mm_per_px)) + 1
+    hf = obj.heights(x0, y0, w, h, mm_per_px, seed=seed, rotation_deg=motion.fabric_rotation_deg)
+    return HeightPatch(np.asarray(hf, dtype=np.float32), (x0, y0), mm_per_px)
+
+
+def physics_surface(obj: TouchedObject, motion, profile, *, seed: int):
+    """The :class:`gelsim.contact.Surface` of ``obj`` over ``motion``'s travel (PHYSICS_MM_PER_PX cells,
+    heights shifted to be >= 0)."""
+    from .contact import Surface
+
+    p = travel_patch(obj, motion, profile, PHYSICS_MM_PER_PX, seed=seed, snap=True)
+    hf = p.heights_mm
+    return Surface(np.maximum(hf - min(float(hf.min()), 0.0), 0.0), float(PHYSICS_MM_PER_PX), p.origin_mm,
+                   float(obj.friction))

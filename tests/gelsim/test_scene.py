@@ -1,0 +1,112 @@
+"""gelsim.scene: the typed touched object and the patches built from it."""
+import math
+
+import numpy as np
+import pytest
+
+from gelsim.errors import GelsimError
+from gelsim.fabrics import load_catalog
+from gelsim.motion import sample_motion
+from gelsim.sensor import load_profile
+from gelsim.scene import (PHYSICS_MM_PER_PX, Cylinder, FabricObject, HeightPatch, Sphere, TouchedObject,
+                          as_object, physics_surface, travel_patch)
+
+
+@pytest.fixture(scope="module")
+def profile():
+    return load_profile("vitac")
+
+
+@pytest.fixture(scope="module")
+def fabric():
+    return load_catalog()[3]
+
+
+def test_fabric_wraps_and_objects_pass_through(fabric):
+    obj = as_object(fabric)
+    assert isinstance(obj, FabricObject) and isinstance(obj, TouchedObject)
+    assert obj.friction == pytest.approx(fabric.friction)
+    assert obj.texture_mm == pytest.approx(fabric.texture_mm)
+    assert obj.support() is not None
+    s = Sphere(4.0)
+    assert as_object(s) is s and s.support() is None and s.texture_mm is None
+    with pytest.raises(GelsimError, match="not something the sensor can touch"):
+        as_object("cotton")
+
+
+@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), float("inf")])
+def test_bad_diameter_names_the_fix(bad):
+    with pytest.raises(GelsimError, match="give a value > 0 mm"):
+        Sphere(bad)
+
+
+def test_sphere_heights_are_the_cap():
+    s = Sphere(4.0, center_mm=(1.0, -0.5))
+    p = 0.05
+    h = s.heights(-3.0, -3.0, 121, 121, p)
+    assert h.dtype == np.float32 and h.shape == (121, 121)
+    i, j = np.unravel_index(np.argmax(h), h.shape)
+    assert (-3.0 + j * p, -3.0 + i * p) == pytest.approx((1.0, -0.5), abs=p)
+    assert h.max() == pytest.approx(2.0, abs=1e-3)
+    # a point 1 mm off the apex: sqrt(R^2 - 1)
+    assert h[i, j + 20] == pytest.approx(math.sqrt(3.0), abs=1e-4)
+    assert h.min() == 0.0
+
+
+def test_heights_continuous_across_regions(fabric):
+    """Two abutting regions give the same heights as one region covering both (the object has
+    one frame, whatever window the sequence asks for)."""
+    for obj in (FabricObject(fabric), Cylinder(3.0, angle_deg=30.0)):
+        whole = obj.heights(0.0, 0.0, 80, 40, 0.05, seed=7)
+        left = obj.heights(0.0, 0.0, 40, 40, 0.05, seed=7)
+        right = obj.heights(40 * 0.05, 0.0, 40, 40, 0.05, seed=7)
+        np.testing.assert_allclose(np.hstack([left, right]), whole, atol=1e-5)
+
+
+def test_cylinder_rotation_matches_its_angle():
+    a = Cylinder(2.0, angle_deg=0.0).heights(-2, -2, 81, 81, 0.05, rotation_deg=90.0)
+    b = Cylinder(2.0, angle_deg=90.0).heights(-2, -2, 81, 81, 0.05)
+    np.testing.assert_allclose(a, b, atol=1e-5)
+    # axis along y now: constant down the columns
+    assert np.ptp(b[:, 40]) < 1e-5 and np.ptp(b[40, :]) > 0.5
+
+
+def test_patch_sample_translates_and_rotates():
+    hp = Sphere(2.0).heights(-5.0, -5.0, 201, 201, 0.05)
+    patch = HeightPatch(hp, (-5.0, -5.0), 0.05)
+    img = patch.sample((61, 81), 0.05, 1.0, 0.5, 0.0)
+    # the apex appears at the image point (-x, -y) from the centre: sensor at (1, 0.5) sees the
+    # sphere at (0, 0) down-left of its centre
+    i, j = np.unravel_index(np.argmax(img), img.shape)
+    assert (j - 40, i - 30) == (-20, -10)
+    # a yaw of 90 degrees about the apex leaves a sphere unchanged
+    a = patch.sample((61, 81), 0.05, 0.0, 0.0, 0.0)
+    b = patch.sample((61, 81), 0.05, 0.0, 0.0, 90.0)
+    np.testing.assert_allclose(a[20:41, 30:51], b[20:41, 30:51], atol=2e-3)
+
+
+def test_tilt_raises_the_leaning_side():
+    flat = HeightPatch(np.zeros((50, 50), np.float32), (-10.0, -10.0), 0.4)
+    img = flat.sample((11, 11), 0.1, 0.0, 0.0, 0.0, tilt_deg=(0.0, 2.0))
+    assert img[5, 10] - img[5, 0] == pytest.approx(math.tan(math.radians(2.0)) * 1.0, rel=1e-4)
+
+
+def test_travel_patch_covers_the_motion(fabric, profile):
+    m = sample_motion("slip", 3)
+    p = travel_patch(FabricObject(fabric), m, profile, 0.1, seed=3)
+    xmin, ymin, xmax, ymax = m.travel_bounds_mm()
+    r = 0.5 * math.hypot(*profile.field_mm)
+    x0, y0 = p.origin_mm
+    h, w = p.heights_mm.shape
+    assert x0 <= xmin - r and y0 <= ymin - r
+    assert x0 + (w - 1) * 0.1 >= xmax + r and y0 + (h - 1) * 0.1 >= ymax + r
+
+
+def test_physics_surface_on_its_grid(fabric, profile):
+    m = sample_motion("press", 1)
+    s = physics_surface(FabricObject(fabric), m, profile, seed=1)
+    ox, oy = s.origin_mm
+    # snapped: the origin is a whole number of physics cells, heights >= 0
+    assert ox / PHYSICS_MM_PER_PX == pytest.approx(round(ox / PHYSICS_MM_PER_PX), abs=1e-6)
+    assert oy / PHYSICS_MM_PER_PX == pytest.approx(round(oy / PHYSICS_MM_PER_PX), abs=1e-6)
+    assert s.heights_mm.min() >= 0.0 and s.friction == pytest.approx(fabric.friction)
