@@ -31,6 +31,11 @@ torsion (``twist_deg``). MuJoCo's soft contact stops the pad at the surface (a f
 at a few N): the gel imprint is computed from geometry downstream (:mod:`gelsim.gel`), not from
 this penetration.
 
+The pad is a flat box although the vitac gel is a shallow dome (``GelSpec.dome_radius_mm``): MuJoCo's
+curved geoms (ellipsoid, mesh) against a heightfield cost 11-38x the box's step time (measured), and
+the physics needs only the force, the first touch and the shear, which a dome of 80 mm radius changes
+by less than the tilt does. The dome's sag enters the imprint downstream (:func:`gelsim.gel.press`).
+
 Units: inputs and outputs in mm, N, degrees and s; MuJoCo runs in SI units (m, kg, N, s).
 """
 from __future__ import annotations
