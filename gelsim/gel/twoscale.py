@@ -62,6 +62,8 @@ STATS_BLUR_PER_TEXTURE = 16.0
 # A texture needs this many pixels per period for its slopes to be read (central differences
 # alias beyond q dx = pi / 2).
 MIN_TEXTURE_PX = 4.0
+# Fewest pixels across the contact window (see _widen).
+MIN_WINDOW_PX = 8
 # p / p* beyond complete contact changes nothing (the tables end at 1); a cap keeps it finite.
 S_MAX = 1e3
 # Relief coarser than this many gel thicknesses is the macro solve's, not the texture's.
@@ -347,6 +349,11 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     # 4. The contact window (coarse contact, one block of margin), at full resolution.
     w0, w1 = r0 + max(0, cb[0] - 1) * f, min(r1, r0 + (cb[1] + 1) * f)
     v0, v1 = c0 + max(0, cb[2] - 1) * f, min(c1, c0 + (cb[3] + 1) * f)
+    # A patch touching the frame's edge on a fine grid can leave a window one pixel wide; OpenCV
+    # reads an array of up to 4 elements in one column as a scalar, so widen it (pressure beyond
+    # the macro grid reads zero, see _window_pressure).
+    w0, w1 = _widen(w0, w1, ny)
+    v0, v1 = _widen(v0, v1, nx)
     if has_texture:
         # (The interpolated coarse envelope would save this closing's 2-4 ms at 960x720, but loses
         # the holes and pores finer than a coarse cell: mesh contact 0.51 -> 0.38 of the reference's.)
@@ -479,6 +486,14 @@ def _resample_pressure(warm: MacroState, origin: tuple[int, int], f: int, cshape
 def hc_of(sol: "_Macro") -> np.ndarray:
     """The macro grid's object surface relative to its top (mm, <= 0)."""
     return sol.env_c - sol.emax
+
+
+def _widen(a: int, b: int, n: int, least: int = MIN_WINDOW_PX) -> tuple[int, int]:
+    """[a, b) grown about its middle to at least ``least`` pixels, within [0, n)."""
+    if b - a >= least or n <= b - a:
+        return a, b
+    a = max(0, min(a - (least - (b - a)) // 2, n - least))
+    return a, min(n, a + least)
 
 
 def _window_pressure(p: np.ndarray, f: int, origin, win) -> np.ndarray:

@@ -420,3 +420,15 @@ def test_with_resolution_keeps_mm_per_px_in_range():
 def test_motion_twist_outside_range():
     with pytest.raises(GelsimError):
         base_motion("twist", twist_deg=720.0)
+
+
+
+def test_textured_contact_on_the_frames_edge():
+    """A twist whose contact reaches the frame's edge at 320x240 left the two-scale contact window
+    one pixel wide, which OpenCV's arithmetic reads as a scalar (sequence f009-s0004 of the cpu
+    preset); every frame now renders."""
+    profile = load_profile("vitac").with_resolution(320, 240)
+    motion = sample_motion("twist", 88805309, frames=(34, 34), precontact=None)
+    out = SequenceOutput({}, {})
+    frames = list(render_sequence(load_catalog()[9], motion, profile, BAL, seed=88805309, out=out))
+    assert len(frames) == 34 and all(np.isfinite(f).all() for f in frames)
