@@ -169,6 +169,8 @@ class UnitVariationSpec:
     blur_px: float = param(0.0, lo=0.0, hi=5.0, doc="lens blur added to the profile's, 0 to this, px (sigma)")
     exposure_frac: float = param(0.0, lo=0.0, hi=0.5,
                                  doc="camera exposure: the whole image's brightness, +-fraction")
+    dome_radius_frac: float = param(0.0, lo=0.0, hi=0.5, doc="the gel dome's radius of curvature, +-fraction "
+                                                             "(a flat gel stays flat)")
 
 
 @dataclass(frozen=True)

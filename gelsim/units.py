@@ -17,7 +17,7 @@ What a draw changes, per shading model:
   ``[shading] channel_rotation_deg`` (the table turned per channel, with its shadows);
 * background: ``rgb_dn`` offset per channel and the blotches' amplitude (parametric background;
   a measured background image keeps its pattern);
-* gel: ``thickness_mm`` and ``young_modulus_mpa``;
+* gel: ``thickness_mm``, ``young_modulus_mpa`` and ``dome_radius_mm`` (0, flat, stays flat);
 * markers: ``size_mm``, ``pitch_mm``, extra ``jitter_mm`` and ``missing_fraction``;
 * camera: ``read_sigma_dn``, extra ``blur_sigma_px``, and the exposure, a factor on both
   ``[background] gain`` and ``[shading] gain_dn``.
@@ -71,6 +71,7 @@ def draw_unit(profile: SensorProfile, seed: int) -> SensorProfile:
     d_read = float(_uniform(rng, v.read_noise_frac)[0])
     d_blur = float(rng.uniform(0.0, 1.0)) * v.blur_px
     d_exp = float(_uniform(rng, v.exposure_frac)[0])
+    d_dome = float(_uniform(rng, v.dome_radius_frac)[0])    # drawn last: added after the others
 
     lights = []
     ch_gain = [1.0, 1.0, 1.0]
@@ -95,7 +96,8 @@ def draw_unit(profile: SensorProfile, seed: int) -> SensorProfile:
         bg, rgb_dn=tuple(float(np.clip(c + float(d), 0.0, 255.0)) for c, d in zip(bg.rgb_dn, d_bg)),
         nonuniformity_dn=bg.nonuniformity_dn * (1.0 + d_blot), gain=bg.gain * (1.0 + d_exp))
     gel = dataclasses.replace(profile.gel, thickness_mm=profile.gel.thickness_mm * (1.0 + d_thick),
-                              young_modulus_mpa=profile.gel.young_modulus_mpa * (1.0 + d_mod))
+                              young_modulus_mpa=profile.gel.young_modulus_mpa * (1.0 + d_mod),
+                              dome_radius_mm=profile.gel.dome_radius_mm * (1.0 + d_dome))
     mk = profile.markers
     markers = dataclasses.replace(mk, size_mm=mk.size_mm * (1.0 + d_size), pitch_mm=mk.pitch_mm * (1.0 + d_pitch),
                                   jitter_mm=mk.jitter_mm + d_jit, missing_fraction=min(0.5, mk.missing_fraction + d_miss))
@@ -112,7 +114,7 @@ def unit_record(profile: SensorProfile) -> dict:
     """The parameters a unit draw changes, as plain data (for labels and ``--json``): per LED
     ``intensity``, ``color_rgb``, ``azimuth_deg``, ``elevation_deg``; ``channel_gain``,
     ``channel_rotation_deg``, ``shading_gain_dn``; background ``rgb_dn``, ``nonuniformity_dn``,
-    ``gain``; gel ``thickness_mm``, ``young_modulus_mpa``; markers ``size_mm``, ``pitch_mm``,
+    ``gain``; gel ``thickness_mm``, ``young_modulus_mpa``, ``dome_radius_mm``; markers ``size_mm``, ``pitch_mm``,
     ``jitter_mm``, ``missing_fraction``; ``read_sigma_dn``; ``blur_sigma_px``."""
     return {
         "profile": profile.name,
@@ -126,6 +128,7 @@ def unit_record(profile: SensorProfile) -> dict:
         "background_gain": profile.background.gain,
         "gel_thickness_mm": profile.gel.thickness_mm,
         "gel_young_modulus_mpa": profile.gel.young_modulus_mpa,
+        "gel_dome_radius_mm": profile.gel.dome_radius_mm,
         "marker_size_mm": profile.markers.size_mm,
         "marker_pitch_mm": profile.markers.pitch_mm,
         "marker_jitter_mm": profile.markers.jitter_mm,

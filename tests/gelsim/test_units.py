@@ -30,7 +30,8 @@ def test_same_seed_same_unit_other_seed_other_unit(vitac):
     recs = [unit_record(draw_unit(vitac, s)) for s in range(20)]
     base = unit_record(vitac)
     for key in ("gel_thickness_mm", "gel_young_modulus_mpa", "marker_size_mm", "marker_pitch_mm", "read_sigma_dn",
-                "blur_sigma_px", "background_gain", "shading_gain_dn", "marker_missing_fraction"):
+                "blur_sigma_px", "background_gain", "shading_gain_dn", "marker_missing_fraction",
+                "gel_dome_radius_mm"):
         assert any(r[key] != base[key] for r in recs), key
     assert any(r["lights"][0]["azimuth_deg"] != base["lights"][0]["azimuth_deg"] for r in recs)
 
@@ -47,6 +48,7 @@ def test_draws_stay_in_the_documented_ranges(vitac):
             assert all(0.0 <= c <= 1.0 for c in lt["color_rgb"])
         assert abs(r["gel_thickness_mm"] / base["gel_thickness_mm"] - 1) <= v.gel_thickness_frac + 1e-9
         assert abs(r["gel_young_modulus_mpa"] / base["gel_young_modulus_mpa"] - 1) <= v.gel_modulus_frac + 1e-9
+        assert abs(r["gel_dome_radius_mm"] / base["gel_dome_radius_mm"] - 1) <= v.dome_radius_frac + 1e-9
         assert abs(r["marker_pitch_mm"] / base["marker_pitch_mm"] - 1) <= v.marker_pitch_frac + 1e-9
         assert 0 <= r["marker_jitter_mm"] - base["marker_jitter_mm"] <= v.marker_jitter_mm + 1e-12
         assert 0 <= r["marker_missing_fraction"] <= v.marker_missing_max + 1e-12
@@ -68,6 +70,9 @@ def test_no_section_or_zero_ranges_change_nothing(vitac):
         draw_unit(vitac, 1.5)
     assert set(variation_ranges(vitac)) == {f.name for f in dataclasses.fields(UnitVariationSpec)}
     assert variation_ranges(r15) is None
+    # a flat gel stays flat whatever its unit draws
+    flat = dataclasses.replace(vitac, gel=dataclasses.replace(vitac.gel, dome_radius_mm=0.0))
+    assert all(draw_unit(flat, s).gel.dome_radius_mm == 0.0 for s in range(5))
 
 
 def test_a_unit_renders_differently_and_deterministically(vitac):
