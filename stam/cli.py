@@ -42,9 +42,28 @@ def _onsets(args) -> int:
     res = TactileDataset(args.data).onset_agreement(args.image_size, args.threshold)
     if args.json:
         print_json(res)
-    else:
-        print(f"onset detection (threshold {args.threshold} grey levels): exact {res['exact']}/{res['sequences']}, "
-              f"within one frame {res['within_1']}, not detected {res['not_detected']}")
+        return 0
+    n = res["sequences"]
+    if not n:
+        print("no sequence in the manifest has a contact_onset; nothing to compare")
+        return 0
+
+    def rate(k, ci):
+        return f"{k}/{n} ({100 * k / n:.1f}%, 95% CI {100 * ci[0]:.1f}-{100 * ci[1]:.1f}%)"
+
+    print(f"onset detection (threshold {res['threshold_dn']:g} DN) against the manifest's contact_onset, {n} sequences:")
+    print(f"  exact          {rate(res['exact'], res['exact_ci95'])}")
+    print(f"  within 1 frame {rate(res['within_1'], res['within_1_ci95'])}")
+    print(f"  not detected   {res['not_detected']}")
+    print("  detected - true (frames): " + ", ".join(f"{e}: {c}" for e, c in res["error_histogram"].items()))
+    labels = {"true_onset_0": "true onset at frame 0 (detectable at 1 at the earliest)",
+              "true_onset_1_plus": "true onset at frame 1 or later"}
+    for name, g in res["by_true_onset"].items():
+        if g["sequences"]:
+            print(f"  {labels[name]}: {g['sequences']} sequences, exact {g['exact']}, within 1 {g['within_1']}")
+    print("  confusion (true onset: detected onset x count):")
+    for t, row in res["confusion"].items():
+        print(f"    {t:>3}: " + " ".join(f"{d}x{c}" for d, c in row.items()))
     return 0
 
 
@@ -139,9 +158,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--classes", type=int, default=100, help="number of fabric classes")
     s.add_argument("--readings", action="store_true", help="also list the counts of several readings of the paper")
 
-    s = cmd("onsets", _onsets, "how often the detected contact onset matches the manifest's contact_onset")
+    s = cmd("onsets", _onsets, "how often the contact onset detected from the images matches the manifest's "
+            "contact_onset: exact and within-one-frame rates with 95% intervals, error histogram, confusion")
     s.add_argument("--data", required=True, help="dataset directory (gelsim generate --out)")
-    s.add_argument("--threshold", type=float, default=DEFAULT_ONSET_THRESHOLD, help="contact score threshold, grey levels 0-255")
+    s.add_argument("--threshold", type=float, default=DEFAULT_ONSET_THRESHOLD, help="contact score threshold, DN (0-255) of RGB change per frame (from frame 0: twice that)")
     s.add_argument("--image-size", type=int, default=128, help="px, size of the frame cache filled on the way")
 
     s = cmd("pretrain", _pretrain, "pretrain the AlexNet backbone on single training frames (stand-in for ImageNet)")
