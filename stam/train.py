@@ -18,13 +18,10 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
-import math
 import os
 import random
 import sys
 import time
-import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -36,120 +33,8 @@ from gelsim.errors import GelsimError
 
 from . import models
 from .backbone import AlexNet, feature_size, fold_batchnorm
+from .config import TrainConfig, default_preset, load_preset, parse_sets, resolve_train
 from .data import DEFAULT_ONSET_THRESHOLD, FrameDataset, TactileDataset, WindowDataset, backbone_features
-
-
-@dataclass
-class TrainConfig:
-    """Everything a run depends on. Units: px for sizes, frames for n, sequences for batches."""
-
-    data: str = ""                 # dataset directory (gelsim generate --out)
-    out: str = ""                  # run directory
-    model: str = "stam"            # cnn | cnn_sa | stam
-    frames: int = 2                # n consecutive frames per window
-    start: str = "contact"         # contact (clean) | zero (noisy)
-    onset: str = "detected"        # detected | true
-    onset_threshold: float = DEFAULT_ONSET_THRESHOLD  # grey levels
-    image_size: int = 224          # px
-    crop: float = 1.0              # centred square kept from each frame, fraction of its shorter side
-    width: float = 1.0             # AlexNet channel multiplier
-    fusion: str = "mean_logits"
-    modules: int = 10
-    combine: str = "mean"
-    qk_reduction: int = 8
-    residual_gain: str = "learned"
-    sa_batchnorm: bool = False
-    dropout: float = 0.5
-    hidden: int = 0                # fc6/fc7 width (0 = 4096 x width)
-    pretrained: str = ""           # backbone checkpoint from `stam pretrain` ("" = random init)
-    freeze_backbone: bool = False
-    epochs: int = 30
-    batch_size: int = 32
-    optimizer: str = "sgd"         # sgd | adam
-    lr: float = 0.01
-    momentum: float = 0.9
-    weight_decay: float = 5e-4
-    lr_schedule: str = "cosine"    # cosine | constant
-    seed: int = 0
-    threads: int = 0               # torch CPU threads (0 = torch's default)
-    workers: int = 0               # DataLoader worker processes
-    device: str = "auto"           # auto | cpu | cuda
-    cache_dir: str = ""            # frame cache ("" = DIR/.stam-cache)
-    progress: bool = True          # tqdm progress bar
-
-    def model_options(self) -> dict:
-        return {"width": self.width, "image_size": self.image_size, "fusion": self.fusion,
-                "modules": self.modules, "combine": self.combine, "qk_reduction": self.qk_reduction,
-                "residual_gain": self.residual_gain, "sa_batchnorm": self.sa_batchnorm, "dropout": self.dropout,
-                "hidden": self.hidden}
-
-
-FIELDS = {f.name: f for f in dataclasses.fields(TrainConfig)}
-
-
-def _coerce(key: str, value, source: str):
-    if key not in FIELDS:
-        raise GelsimError(f"unknown config key {key!r} in {source}; valid keys: {', '.join(FIELDS)}")
-    kind = type(FIELDS[key].default)
-    if kind is bool:
-        if isinstance(value, str):
-            if value.lower() in ("1", "true", "yes", "on"):
-                return True
-            if value.lower() in ("0", "false", "no", "off"):
-                return False
-            raise GelsimError(f"{key}={value!r} in {source} is not a boolean; use true or false")
-        if isinstance(value, bool):
-            return value
-    try:
-        if kind is int and isinstance(value, float) and not value.is_integer():
-            raise ValueError
-        return kind(value)
-    except (TypeError, ValueError):
-        raise GelsimError(f"{key}={value!r} in {source} is not a valid {kind.__name__}; fix the value") from None
-
-
-def load_config(path: str | Path | None = None, overrides: dict | None = None,
-                sets: list[str] | None = None) -> TrainConfig:
-    """Defaults, then the TOML file ``path``, then ``overrides`` (dict), then ``sets`` ("key=value")."""
-    values: dict = {}
-    if path:
-        p = Path(path)
-        try:
-            raw = tomllib.loads(p.read_text())
-        except FileNotFoundError:
-            raise GelsimError(f"config file {p} not found; check the path") from None
-        except tomllib.TOMLDecodeError as e:
-            raise GelsimError(f"config file {p} is not valid TOML ({e}); fix it") from None
-        for k, v in raw.items():
-            values[k] = _coerce(k, v, str(p))
-    for k, v in (overrides or {}).items():
-        if v is not None:
-            values[k] = _coerce(k, v, "the command line")
-    for item in sets or []:
-        if "=" not in item:
-            raise GelsimError(f"--set {item!r} is not key=value; write e.g. --set lr=0.001")
-        k, v = item.split("=", 1)
-        values[k.strip()] = _coerce(k.strip(), v.strip(), "--set")
-    cfg = TrainConfig(**values)
-    validate(cfg)
-    return cfg
-
-
-def validate(cfg: TrainConfig) -> None:
-    checks = [
-        (cfg.model in models.MODEL_NAMES, f"model {cfg.model!r} unknown; choose {', '.join(models.MODEL_NAMES)}"),
-        (cfg.optimizer in ("sgd", "adam"), f"optimizer {cfg.optimizer!r} unknown; choose sgd or adam"),
-        (cfg.lr_schedule in ("cosine", "constant"), f"lr_schedule {cfg.lr_schedule!r} unknown; choose cosine or constant"),
-        (cfg.epochs >= 1 and cfg.batch_size >= 1, "epochs and batch_size must be at least 1"),
-        (cfg.lr > 0, f"lr must be positive, got {cfg.lr}"),
-        (0 < cfg.width <= 4, f"width must be in (0, 4], got {cfg.width}"),
-        (cfg.image_size >= 64, f"image_size must be at least 64 px, got {cfg.image_size}"),
-        (cfg.frames >= 1, f"frames must be at least 1, got {cfg.frames}"),
-        (cfg.device in ("auto", "cpu", "cuda"), f"device {cfg.device!r} unknown; choose auto, cpu or cuda"),
-    ]
-    for ok, msg in checks:
-        if not ok:
-            raise GelsimError(msg)
 
 
 def resolve_device(name: str) -> torch.device:
@@ -351,8 +236,10 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
                      "rng": torch.get_rng_state(), "num_classes": data.num_classes,
                      "class_names": data.class_names}, last_path)
         if log:
+            left = cfg.epochs - epoch
+            eta = f"; about {left * row['seconds'] / 60:.1f} min for the {left} epochs left" if epoch == start_epoch and left else ""
             log(f"epoch {epoch}: train loss {tl:.3f} acc {ta:.3f}, val loss {vl:.3f} acc {va:.3f} "
-                f"({row['seconds']:.1f} s)")
+                f"({row['seconds']:.1f} s{eta})")
     return {"out": str(out), "best_val_acc": best_acc, "best_epoch": best_epoch, "epochs": cfg.epochs,
             "train_windows": len(train_ds), "val_windows": len(val_ds),
             "undetected_onsets_train": train_ds.undetected, "best": str(best_path), "last": str(last_path)}
@@ -363,7 +250,8 @@ def model_from_checkpoint(path: str | Path) -> tuple[models.SequenceModel, Train
     ck = load_checkpoint(path)
     if "model" not in ck or "config" not in ck:
         raise GelsimError(f"{path} is not a stam training checkpoint; pass best.pt or last.pt of a run")
-    cfg = TrainConfig(**{k: v for k, v in ck["config"].items() if k in FIELDS})
+    known = {f.name for f in dataclasses.fields(TrainConfig)}
+    cfg = resolve_train(TrainConfig(), {k: v for k, v in ck["config"].items() if k in known}, str(path))
     model = models.build(cfg.model, cfg.frames, int(ck["num_classes"]), **cfg.model_options())
     model.load_state_dict(ck["model"])
     return model.eval(), cfg, ck
@@ -421,3 +309,65 @@ def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: 
             state = {k: v.detach().clone() for k, v in plain.state_dict().items()}
     save_atomic({"backbone": state, "settings": settings, "val_acc": best, "log": rows}, path)
     return {"path": str(path), "val_acc": best, "reused": False, "train_frames": len(train_ds)}
+
+
+def cuda_available() -> bool:
+    """Whether torch sees a CUDA device (what ``stam train`` picks its default preset by)."""
+    return torch.cuda.is_available()
+
+
+def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict | None = None,
+              sets: list[str] | None = None, pretrained: str | None = None, resume: bool = False,
+              dry_run: bool = False, log=print, note=print) -> dict:
+    """What ``stam train`` does: resolve the config (preset, then ``overrides``, then ``sets``
+    "key=value"), pretrain the backbone as the preset's ``[pretrain]`` says (into ``OUT/pretrain/``,
+    reused when its settings match) unless ``pretrained`` names a backbone (``"none"``: random
+    weights), then train. With ``preset=None`` the preset is the one ``--resume`` finds in
+    ``OUT/config.json``, else :func:`stam.config.default_preset` (cpu without a CUDA device), and
+    ``note`` says so in one line. ``dry_run``: resolve and check only. Returns a summary dict."""
+    if not data or not out:
+        raise GelsimError("both data and out are required; pass --data DIR --out DIR")
+    out_dir = Path(out)
+    if resume and not (out_dir / "last.pt").is_file():
+        raise GelsimError(f"nothing to resume in {out_dir} (no last.pt); run without --resume")
+    extra = parse_sets(sets or [])
+    chosen = None
+    if preset is None and resume and (out_dir / "config.json").is_file():
+        preset = json.loads((out_dir / "config.json").read_text()).get("preset") or None
+    if preset is None:
+        device = str(extra.get("device") or (overrides or {}).get("device") or "auto")
+        preset = chosen = default_preset(device, cuda_available())
+    p = load_preset(preset)
+    cfg = resolve_train(p.train, {**(overrides or {}), "data": str(data), "out": str(out), "preset": p.name})
+    cfg = resolve_train(cfg, extra, "--set")
+    if pretrained == "none":
+        cfg, plan = dataclasses.replace(cfg, pretrained=""), None
+    elif pretrained:
+        cfg, plan = dataclasses.replace(cfg, pretrained=str(pretrained)), None
+    elif not cfg.pretrained and p.pretrain is not None:
+        plan = p.pretrain
+        cfg = dataclasses.replace(cfg, pretrained=str(out_dir / "pretrain" / "backbone.pt"))
+    else:
+        plan = None
+    if plan is not None and plan.width != cfg.width:
+        raise GelsimError(f"the backbone would be pretrained at width {plan.width:g} but trained at width "
+                          f"{cfg.width:g}; give [pretrain] and [train] the same width in a preset file, "
+                          "or pass --pretrained PATH|none")
+    if chosen is not None and note:
+        why = "no CUDA device" if chosen != "paper" else "a CUDA device is available"
+        note(f"stam train: no --preset given and {why}: using the {chosen} preset: {p.describe()}; "
+             "see `stam train --help`")
+    dataset = TactileDataset(cfg.data, cfg.cache_dir or None, crop=cfg.crop)
+    shortest = min(s.num_frames for s in dataset.sequences)
+    if cfg.frames > shortest:
+        raise GelsimError(f"n_frames={cfg.frames} is outside 1..{shortest} (the shortest sequence); choose a smaller n")
+    summary = {"preset": p.name, "preset_chosen_by_default": chosen is not None,
+               "pretrain": None if plan is None else dataclasses.asdict(plan), "config": dataclasses.asdict(cfg)}
+    if dry_run:
+        return summary
+    if plan is not None:
+        pt = pretrain(cfg.data, out_dir / "pretrain", data=dataset, crop=cfg.crop, onset_threshold=cfg.onset_threshold,
+                      device=cfg.device, progress=cfg.progress, log=log, **dataclasses.asdict(plan))
+        summary["pretrain_result"] = pt
+    summary.update(train(cfg, resume=resume, data=dataset, log=log))
+    return summary

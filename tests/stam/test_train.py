@@ -6,14 +6,15 @@ import torch
 
 from stam import cli
 from stam.evaluate import evaluate
-from stam.train import load_checkpoint, load_config, train
+from stam.config import TrainConfig, resolve_train
+from stam.train import load_checkpoint, train
 
 
 def _cfg(synth, out, **kw):
     base = {"data": str(synth), "out": str(out), "model": "stam", "frames": 3, "image_size": 96, "width": 0.25,
             "epochs": 2, "batch_size": 8, "optimizer": "adam", "lr": 0.001, "lr_schedule": "constant",
             "progress": False}
-    return load_config(None, base | kw)
+    return resolve_train(TrainConfig(), base | kw)
 
 
 def test_tiny_end_to_end_training_beats_chance(synth, tmp_path):
@@ -47,14 +48,17 @@ def test_resume_continues_from_checkpoint(synth, tmp_path):
 
 def test_config_errors_exit_2(synth, tmp_path, capsys):
     bad = tmp_path / "bad.toml"
-    bad.write_text('model = "stam"\nlearning_rate = 0.1\n')
+    bad.write_text('[train]\nmodel = "stam"\nlearning_rate = 0.1\n')
     assert cli.main(["train", "--config", str(bad), "--data", str(synth), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
-    assert "unknown config key 'learning_rate'" in err and "\n" not in err
+    assert "unknown key 'learning_rate'" in err and "bad.toml" in err and "\n" not in err
     assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "o"), "--set", "epochs=two"]) == 2
     assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "o"), "--frames", "11",
-                     "--set", "image_size=96", "--set", "width=0.25", "--quiet"]) == 2
+                     "--pretrained", "none", "--set", "image_size=96", "--set", "width=0.25", "--quiet"]) == 2
     assert "outside" in capsys.readouterr().err
+    assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "o"), "--preset", "cpu",
+                     "--set", "width=0.25", "--quiet"]) == 2
+    assert "pretrained at width 0.5 but trained at width 0.25" in capsys.readouterr().err
     assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "o2"), "--resume"]) == 2
 
 
