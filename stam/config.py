@@ -8,7 +8,7 @@ A preset (``stam/configs/<name>.toml`` or any ``.toml`` path) has up to three se
 * ``[sweep]``     the Tables I/II sweep of ``stam experiment`` (:class:`SweepConfig`).
 
 Every file, and every override from the command line, goes through :func:`gelsim.params.build`, as
-gelsim's own data files do: unknown keys, wrong types and out-of-range values are a GelsimError
+gelsim's own data files do: unknown keys, wrong types and out-of-range values are a StamError
 naming the file and key. ``stam train`` and ``stam experiment`` read the same presets.
 """
 from __future__ import annotations
@@ -23,6 +23,7 @@ from gelsim.errors import GelsimError
 from gelsim.params import build, load_toml, param
 
 from .data import DEFAULT_ONSET_THRESHOLD
+from .errors import StamError
 
 CONFIG_DIR = Path(__file__).parent / "configs"
 # Without a GPU, `stam train` with no --preset uses the cpu preset: the library defaults (full
@@ -75,7 +76,7 @@ class TrainConfig:
         from .models import MODEL_NAMES
 
         if self.model not in MODEL_NAMES:
-            raise GelsimError(f"{where}: model {self.model!r} unknown; choose one of {', '.join(MODEL_NAMES)}")
+            raise StamError(f"{where}: model {self.model!r} unknown; choose one of {', '.join(MODEL_NAMES)}")
 
     def model_options(self) -> dict:
         return {"width": self.width, "image_size": self.image_size, "fusion": self.fusion,
@@ -113,12 +114,12 @@ class SweepConfig:
 
         for m in self.models:
             if m not in MODEL_NAMES:
-                raise GelsimError(f"{where}.models: {m!r} unknown; choose from {', '.join(MODEL_NAMES)}")
+                raise StamError(f"{where}.models: {m!r} unknown; choose from {', '.join(MODEL_NAMES)}")
         for s in self.settings:
             if s not in ("clean", "noisy"):
-                raise GelsimError(f"{where}.settings: {s!r} unknown; choose clean or noisy")
+                raise StamError(f"{where}.settings: {s!r} unknown; choose clean or noisy")
         if not self.frames or min(self.frames) < 1:
-            raise GelsimError(f"{where}.frames: {list(self.frames)} must be frame counts of at least 1")
+            raise StamError(f"{where}.frames: {list(self.frames)} must be frame counts of at least 1")
 
 
 @dataclass(frozen=True)
@@ -153,28 +154,41 @@ def preset_path(preset: str | Path) -> Path:
     path = Path(s) if s.endswith(".toml") else CONFIG_DIR / f"{s}.toml"
     if not path.is_file():
         if s.endswith(".toml"):
-            raise GelsimError(f"preset file {path} not found; check the path")
-        raise GelsimError(f"unknown preset {s!r}; choose one of {', '.join(preset_names())} or a .toml path")
+            raise StamError(f"preset file {path} not found; check the path")
+        raise StamError(f"unknown preset {s!r}; choose one of {', '.join(preset_names())} or a .toml path")
     return path
 
 
 def load_preset(preset: str | Path) -> Preset:
     """Read and validate a preset (name or ``.toml`` path)."""
     path = preset_path(preset)
-    raw = load_toml(path)
+    try:
+        raw = load_toml(path)
+    except GelsimError as e:
+        raise StamError(str(e)) from None
     flat = [k for k, v in raw.items() if not isinstance(v, dict)]
     if flat:
-        raise GelsimError(f"{path}: key {flat[0]!r} is outside a section; put training keys under [train] "
+        raise StamError(f"{path}: key {flat[0]!r} is outside a section; put training keys under [train] "
                           "(sections: [pretrain], [train], [sweep])")
     name = path.stem if path.parent == CONFIG_DIR else str(path)
-    return build(Preset, {"name": name, **raw}, str(path))
+    return _build(Preset, {"name": name, **raw}, str(path))
 
 
 def resolve_train(base: TrainConfig, overrides: dict | None = None, source: str = "the command line") -> TrainConfig:
     """``base`` with ``overrides`` (None values skipped), validated like a file."""
     values = dataclasses.asdict(base)
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
-    return build(TrainConfig, values, source)
+    return _build(TrainConfig, values, source)
+
+
+def _build(cls, data: dict, where: str):
+    """:func:`gelsim.params.build`, its errors as StamError."""
+    try:
+        return build(cls, data, where)
+    except StamError:
+        raise
+    except GelsimError as e:
+        raise StamError(str(e)) from None
 
 
 def parse_sets(items: list[str]) -> dict:
@@ -183,7 +197,7 @@ def parse_sets(items: list[str]) -> dict:
     out = {}
     for item in items or []:
         if "=" not in item:
-            raise GelsimError(f"--set {item!r} is not key=value; write e.g. --set lr=0.001")
+            raise StamError(f"--set {item!r} is not key=value; write e.g. --set lr=0.001")
         k, v = (x.strip() for x in item.split("=", 1))
         try:
             out[k] = tomllib.loads(f"v = {v}")["v"]

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from gelsim.errors import GelsimError
+from .errors import StamError
 
 FORMAT = "gelsim-dataset"
 FORMAT_VERSION = 1
@@ -76,38 +76,38 @@ NOISE_FACTOR = 6.0
 
 
 def load_manifest(data_dir: str | Path) -> dict:
-    """Read and check ``DIR/manifest.json``; raise GelsimError for a missing, foreign or
+    """Read and check ``DIR/manifest.json``; raise StamError for a missing, foreign or
     incomplete dataset."""
     d = Path(data_dir)
     path = d / "manifest.json"
     if not d.is_dir():
-        raise GelsimError(f"dataset directory {d} does not exist; pass the --out directory of `gelsim generate`")
+        raise StamError(f"dataset directory {d} does not exist; pass the --out directory of `gelsim generate`")
     if not path.is_file():
-        raise GelsimError(f"{d} has no manifest.json; pass a directory made by `gelsim generate`")
+        raise StamError(f"{d} has no manifest.json; pass a directory made by `gelsim generate`")
     try:
         m = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as e:
-        raise GelsimError(f"cannot read {path} ({e}); regenerate the dataset") from None
+        raise StamError(f"cannot read {path} ({e}); regenerate the dataset") from None
     if not isinstance(m, dict) or m.get("format") != FORMAT:
-        raise GelsimError(f"{path} is not a gelsim dataset manifest (format {m.get('format') if isinstance(m, dict) else None!r}); "
+        raise StamError(f"{path} is not a gelsim dataset manifest (format {m.get('format') if isinstance(m, dict) else None!r}); "
                           "pass a directory made by `gelsim generate`")
     if m.get("format_version") != FORMAT_VERSION:
-        raise GelsimError(f"{path} has format_version {m.get('format_version')!r}, this reader knows {FORMAT_VERSION}; "
+        raise StamError(f"{path} has format_version {m.get('format_version')!r}, this reader knows {FORMAT_VERSION}; "
                           "regenerate the dataset or upgrade stam")
     if m.get("complete") is not True:
-        raise GelsimError(f"dataset {d} is incomplete (complete: false); rerun `gelsim generate` to finish it")
+        raise StamError(f"dataset {d} is incomplete (complete: false); rerun `gelsim generate` to finish it")
     for key in ("fabrics", "sequences"):
         if not isinstance(m.get(key), list) or not m[key]:
-            raise GelsimError(f"{path} has no {key}; regenerate the dataset")
+            raise StamError(f"{path} has no {key}; regenerate the dataset")
     ids = {f["id"] for f in m["fabrics"]}
     for s in m["sequences"]:
         for key in ("id", "fabric_id", "num_frames", "split", "video"):
             if key not in s:
-                raise GelsimError(f"sequence {s.get('id', '?')} in {path} lacks {key!r}; regenerate the dataset")
+                raise StamError(f"sequence {s.get('id', '?')} in {path} lacks {key!r}; regenerate the dataset")
         if s["fabric_id"] not in ids:
-            raise GelsimError(f"sequence {s['id']} names unknown fabric {s['fabric_id']}; regenerate the dataset")
+            raise StamError(f"sequence {s['id']} names unknown fabric {s['fabric_id']}; regenerate the dataset")
         if s["split"] not in SPLITS:
-            raise GelsimError(f"sequence {s['id']} has split {s['split']!r}, expected one of {SPLITS}")
+            raise StamError(f"sequence {s['id']} has split {s['split']!r}, expected one of {SPLITS}")
     return m
 
 
@@ -195,7 +195,7 @@ def detect_onset(scores: np.ndarray, threshold: float = DEFAULT_ONSET_THRESHOLD,
     already under way there is reported at frame 1 at the earliest."""
     s = np.asarray(scores, np.float64)
     if s.ndim != 2 or s.shape[1] != 2:
-        raise GelsimError(f"contact scores must have shape (T, 2), got {s.shape}; compute them with contact_scores")
+        raise StamError(f"contact scores must have shape (T, 2), got {s.shape}; compute them with contact_scores")
     bar = onset_bar(threshold, noise_dn)
     hit = (s[:, 1] > bar) | (s[:, 0] > ONSET_DRIFT_FACTOR * bar)
     hit[0] = False
@@ -230,7 +230,7 @@ class TactileDataset:
 
     def __init__(self, data_dir: str | Path, cache_dir: str | Path | None = None, crop: float = 1.0):
         if not 0.05 <= crop <= 1.0:
-            raise GelsimError(f"crop {crop} is out of range; give the kept fraction of the frame, 0.05-1")
+            raise StamError(f"crop {crop} is out of range; give the kept fraction of the frame, 0.05-1")
         # crop: side of a centred square kept from each frame, as a fraction of the frame's shorter
         # side (1.0 = the whole frame squashed to a square, as the paper resized 960x720 to 224x224).
         # A smaller crop trades field of view for texture resolution at a given input size.
@@ -253,7 +253,7 @@ class TactileDataset:
 
     def split(self, name: str) -> list[Sequence]:
         if name not in SPLITS:
-            raise GelsimError(f"unknown split {name!r}; choose one of {', '.join(SPLITS)}")
+            raise StamError(f"unknown split {name!r}; choose one of {', '.join(SPLITS)}")
         return [s for s in self.sequences if s.split == name]
 
     def _paths(self, seq: Sequence, size: int) -> tuple[Path, Path]:
@@ -268,10 +268,10 @@ class TactileDataset:
         from gelsim.video import read_video
 
         if not seq.video.exists():
-            raise GelsimError(f"video {seq.video} listed in the manifest is missing; regenerate the dataset")
+            raise StamError(f"video {seq.video} listed in the manifest is missing; regenerate the dataset")
         frames = read_video(seq.video)
         if frames.shape[0] < 1:
-            raise GelsimError(f"video {seq.video} has no frames; regenerate the dataset")
+            raise StamError(f"video {seq.video} has no frames; regenerate the dataset")
         fpath.parent.mkdir(parents=True, exist_ok=True)
         spath.parent.mkdir(parents=True, exist_ok=True)
         if not spath.is_file():
@@ -377,16 +377,16 @@ class WindowDataset(Dataset):
                  image_size: int = 224, onset: str = "detected",
                  threshold: float = DEFAULT_ONSET_THRESHOLD, features: dict | None = None):
         if start not in STARTS:
-            raise GelsimError(f"unknown start {start!r}; choose one of {', '.join(STARTS)}")
+            raise StamError(f"unknown start {start!r}; choose one of {', '.join(STARTS)}")
         if onset not in ONSETS:
-            raise GelsimError(f"unknown onset {onset!r}; choose one of {', '.join(ONSETS)}")
+            raise StamError(f"unknown onset {onset!r}; choose one of {', '.join(ONSETS)}")
         self.data, self.n, self.size, self.features = data, n_frames, image_size, features
         seqs = data.split(split)
         if not seqs:
-            raise GelsimError(f"dataset {data.dir} has no {split!r} sequences; regenerate it with a larger preset")
+            raise StamError(f"dataset {data.dir} has no {split!r} sequences; regenerate it with a larger preset")
         shortest = min(s.num_frames for s in seqs)
         if not 1 <= n_frames <= shortest:
-            raise GelsimError(f"n_frames={n_frames} is outside 1..{shortest} (the shortest {split} sequence); "
+            raise StamError(f"n_frames={n_frames} is outside 1..{shortest} (the shortest {split} sequence); "
                               "choose a smaller n")
         self.items: list[tuple[Sequence, int]] = []
         self.shifted = self.undetected = 0
@@ -411,7 +411,7 @@ class WindowDataset(Dataset):
             return self.features[seq.id][first:first + self.n].float(), seq.label
         frames = self.data.frames(seq, self.size)
         if frames.shape[0] < first + self.n:
-            raise GelsimError(f"video of {seq.id} has {frames.shape[0]} frames, the manifest says "
+            raise StamError(f"video of {seq.id} has {frames.shape[0]} frames, the manifest says "
                               f"{seq.num_frames}; regenerate the dataset")
         return normalise(frames[first:first + self.n]), seq.label
 

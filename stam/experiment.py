@@ -25,11 +25,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gelsim.errors import GelsimError
-
 from .backbone import AlexNetFeatures
 from .config import PretrainConfig, load_preset, resolve_train
 from .data import SPLITS, TactileDataset, backbone_features
+from .errors import StamError
 from .evaluate import evaluate
 from .train import load_backbone, pretrain, save_atomic, train
 
@@ -75,20 +74,20 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
     seeds = seeds if seeds is not None else sweep.seeds
     for s in settings:
         if s not in SETTINGS:
-            raise GelsimError(f"unknown setting {s!r}; choose clean or noisy")
+            raise StamError(f"unknown setting {s!r}; choose clean or noisy")
     if seeds < 1:
-        raise GelsimError(f"--seeds must be at least 1, got {seeds}")
+        raise StamError(f"--seeds must be at least 1, got {seeds}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     crop = cfg.train.crop
     data = TactileDataset(data_dir, crop=crop)
     for split in SPLITS:
         if not data.split(split):
-            raise GelsimError(f"dataset {data_dir} has no {split!r} sequences; generate at least 10 sequences "
+            raise StamError(f"dataset {data_dir} has no {split!r} sequences; generate at least 10 sequences "
                               "per fabric for the 7:2:1 split")
     shortest = min(s.num_frames for s in data.sequences)
     if max(frames) > shortest or min(frames) < 1:
-        raise GelsimError(f"frames {frames} outside 1..{shortest} (the shortest sequence); choose smaller n")
+        raise StamError(f"frames {frames} outside 1..{shortest} (the shortest sequence); choose smaller n")
 
     t0 = time.perf_counter()
     pre = cfg.pretrain or PretrainConfig()

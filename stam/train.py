@@ -29,19 +29,18 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import DataLoader
 
-from gelsim.errors import GelsimError
-
 from . import models
 from .backbone import AlexNet, feature_size, fold_batchnorm
 from .config import TrainConfig, default_preset, load_preset, parse_sets, resolve_train
 from .data import DEFAULT_ONSET_THRESHOLD, FrameDataset, TactileDataset, WindowDataset, backbone_features
+from .errors import StamError
 
 
 def resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cuda" and not torch.cuda.is_available():
-        raise GelsimError("device cuda requested but no GPU is available; use --set device=cpu")
+        raise StamError("device cuda requested but no GPU is available; use --set device=cpu")
     return torch.device(name)
 
 
@@ -55,11 +54,11 @@ def load_checkpoint(path: str | Path) -> dict:
     """Load a stam checkpoint safely (``weights_only=True``)."""
     p = Path(path)
     if not p.is_file():
-        raise GelsimError(f"checkpoint {p} not found; train first or check the path")
+        raise StamError(f"checkpoint {p} not found; train first or check the path")
     try:
         return torch.load(p, map_location="cpu", weights_only=True)
     except Exception as e:  # a truncated or foreign file: one line, not a traceback
-        raise GelsimError(f"cannot load checkpoint {p} ({type(e).__name__}); retrain or check the file") from None
+        raise StamError(f"cannot load checkpoint {p} ({type(e).__name__}); retrain or check the file") from None
 
 
 def save_atomic(obj, path: Path) -> None:
@@ -74,7 +73,7 @@ def load_backbone(model_backbone: torch.nn.Module, path: str) -> None:
     try:
         model_backbone.load_state_dict(state)
     except RuntimeError:
-        raise GelsimError(f"backbone weights in {path} do not fit this model (different width?); "
+        raise StamError(f"backbone weights in {path} do not fit this model (different width?); "
                           "pretrain with the same width") from None
 
 
@@ -161,7 +160,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
     """Train one run into ``cfg.out``. ``features`` (seq id -> T x C x h x w) skips the backbone
     pass when the backbone is frozen. Returns a summary dict (best validation accuracy, epoch, paths)."""
     if not cfg.data or not cfg.out:
-        raise GelsimError("both data and out are required; pass --data DIR --out DIR")
+        raise StamError("both data and out are required; pass --data DIR --out DIR")
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     if cfg.threads:
@@ -176,14 +175,14 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
     ck = None
     if resume:
         if not last_path.is_file():
-            raise GelsimError(f"nothing to resume in {out} (no last.pt); run without --resume")
+            raise StamError(f"nothing to resume in {out} (no last.pt); run without --resume")
         ck = load_checkpoint(last_path)
         saved = dict(ck["config"])
         mine = dataclasses.asdict(cfg)
         diff = [k for k in mine if k not in ("epochs", "progress", "threads", "workers", "device")
                 and saved.get(k) != mine[k]]
         if diff:
-            raise GelsimError(f"--resume with a different config ({', '.join(diff)}); "
+            raise StamError(f"--resume with a different config ({', '.join(diff)}); "
                               "use the saved config or a new --out")
     else:
         if cfg.pretrained:
@@ -249,7 +248,7 @@ def model_from_checkpoint(path: str | Path) -> tuple[models.SequenceModel, Train
     """Rebuild the model stored in a ``best.pt``/``last.pt``; returns (model in eval mode, config, checkpoint)."""
     ck = load_checkpoint(path)
     if "model" not in ck or "config" not in ck:
-        raise GelsimError(f"{path} is not a stam training checkpoint; pass best.pt or last.pt of a run")
+        raise StamError(f"{path} is not a stam training checkpoint; pass best.pt or last.pt of a run")
     known = {f.name for f in dataclasses.fields(TrainConfig)}
     cfg = resolve_train(TrainConfig(), {k: v for k, v in ck["config"].items() if k in known}, str(path))
     model = models.build(cfg.model, cfg.frames, int(ck["num_classes"]), **cfg.model_options())
@@ -278,7 +277,7 @@ def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: 
     dev = resolve_device(device)
     data = data or TactileDataset(data_dir, cache_dir or None, crop=crop)
     if data.crop != crop:
-        raise GelsimError(f"pretrain crop {crop} differs from the dataset reader's crop {data.crop}")
+        raise StamError(f"pretrain crop {crop} differs from the dataset reader's crop {data.crop}")
     seed_everything(seed)
     # Optional BatchNorm while pretraining from scratch, folded away before saving. Measured on
     # `gelsim generate --preset cpu` (100 fabrics, width 0.5, 128 px, crop 0.5, Adam 1e-3, 3 epochs):
@@ -326,10 +325,10 @@ def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict
     ``OUT/config.json``, else :func:`stam.config.default_preset` (cpu without a CUDA device), and
     ``note`` says so in one line. ``dry_run``: resolve and check only. Returns a summary dict."""
     if not data or not out:
-        raise GelsimError("both data and out are required; pass --data DIR --out DIR")
+        raise StamError("both data and out are required; pass --data DIR --out DIR")
     out_dir = Path(out)
     if resume and not (out_dir / "last.pt").is_file():
-        raise GelsimError(f"nothing to resume in {out_dir} (no last.pt); run without --resume")
+        raise StamError(f"nothing to resume in {out_dir} (no last.pt); run without --resume")
     extra = parse_sets(sets or [])
     chosen = None
     if preset is None and resume and (out_dir / "config.json").is_file():
@@ -350,7 +349,7 @@ def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict
     else:
         plan = None
     if plan is not None and plan.width != cfg.width:
-        raise GelsimError(f"the backbone would be pretrained at width {plan.width:g} but trained at width "
+        raise StamError(f"the backbone would be pretrained at width {plan.width:g} but trained at width "
                           f"{cfg.width:g}; give [pretrain] and [train] the same width in a preset file, "
                           "or pass --pretrained PATH|none")
     if chosen is not None and note:
@@ -360,7 +359,7 @@ def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict
     dataset = TactileDataset(cfg.data, cfg.cache_dir or None, crop=cfg.crop)
     shortest = min(s.num_frames for s in dataset.sequences)
     if cfg.frames > shortest:
-        raise GelsimError(f"n_frames={cfg.frames} is outside 1..{shortest} (the shortest sequence); choose a smaller n")
+        raise StamError(f"n_frames={cfg.frames} is outside 1..{shortest} (the shortest sequence); choose a smaller n")
     summary = {"preset": p.name, "preset_chosen_by_default": chosen is not None,
                "pretrain": None if plan is None else dataclasses.asdict(plan), "config": dataclasses.asdict(cfg)}
     if dry_run:
