@@ -18,6 +18,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import math
 import os
 import random
 import sys
@@ -183,7 +184,10 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
                 and saved.get(k) != mine[k]]
         if diff:
             raise StamError(f"--resume with a different config ({', '.join(diff)}); "
-                              "use the saved config or a new --out")
+                            "use the saved config or a new --out")
+        # Before the frozen backbone's features are computed below: they must come from the
+        # checkpoint's backbone, not from this freshly initialised one.
+        model.load_state_dict(ck["model"])
     else:
         if cfg.pretrained:
             load_backbone(model.backbone, cfg.pretrained)
@@ -204,13 +208,18 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
     opt = make_optimizer(cfg, model.parameters())
     sched = make_scheduler(cfg, opt)
     if ck is not None:
-        model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         sched.load_state_dict(ck["scheduler"])
         torch.set_rng_state(ck["rng"])
         start_epoch, best_acc, best_epoch = ck["epoch"] + 1, ck["best_acc"], ck["best_epoch"]
-        if hasattr(sched, "T_max"):  # more epochs on resume: stretch the cosine to the new end
+        if hasattr(sched, "T_max") and sched.T_max != cfg.epochs:
+            # More (or fewer) epochs on resume: the cosine over the new length, from where the run is.
+            # PyTorch's cosine steps recursively from the current rate, which is 0 at the old end, so
+            # the rate is set to the new curve's value here (as a run of cfg.epochs would have it).
             sched.T_max = cfg.epochs
+            for group, base in zip(opt.param_groups, sched.base_lrs):
+                group["lr"] = sched.eta_min + (base - sched.eta_min) * (
+                    1 + math.cos(math.pi * sched.last_epoch / cfg.epochs)) / 2
     config = dataclasses.asdict(cfg)
     (out / "config.json").write_text(json.dumps(config, indent=2))
     logger = CsvLog(out / "log.csv", start_epoch - 1)

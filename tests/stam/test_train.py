@@ -1,5 +1,6 @@
 import csv
 import json
+import math
 
 import pytest
 import torch
@@ -44,6 +45,33 @@ def test_resume_continues_from_checkpoint(synth, tmp_path):
     assert json.loads((tmp_path / "b" / "config.json").read_text())["epochs"] == 4
     with pytest.raises(Exception, match="different config"):
         train(_cfg(synth, tmp_path / "b", epochs=5, lr=0.1, **kw), resume=True, log=None)
+
+
+def test_resume_uses_the_checkpoints_frozen_backbone(synth, tmp_path):
+    # After a resume the frozen backbone's features must come from the checkpoint's (pretrained)
+    # backbone, not from the freshly built model's random one.
+    from stam import models
+
+    torch.manual_seed(123)
+    backbone = models.build("cnn", 3, 4, width=0.25, image_size=96).backbone
+    torch.save({"backbone": backbone.state_dict()}, tmp_path / "backbone.pt")
+    kw = {"model": "cnn", "freeze_backbone": True, "seed": 3, "pretrained": str(tmp_path / "backbone.pt")}
+    straight = train(_cfg(synth, tmp_path / "a", epochs=4, **kw), log=None)
+    train(_cfg(synth, tmp_path / "b", epochs=2, **kw), log=None)
+    resumed = train(_cfg(synth, tmp_path / "b", epochs=4, **kw), resume=True, log=None)
+    a, b = load_checkpoint(straight["last"]), load_checkpoint(resumed["last"])
+    for k in a["model"]:
+        torch.testing.assert_close(a["model"][k], b["model"][k], rtol=1e-5, atol=1e-6)
+
+
+def test_resume_with_more_epochs_follows_the_longer_cosine(synth, tmp_path):
+    kw = {"model": "cnn", "freeze_backbone": True, "lr_schedule": "cosine", "lr": 0.002}
+    train(_cfg(synth, tmp_path / "b", epochs=2, **kw), log=None)
+    train(_cfg(synth, tmp_path / "b", epochs=4, **kw), resume=True, log=None)
+    with open(tmp_path / "b" / "log.csv") as f:
+        lr = [float(r["lr"]) for r in csv.DictReader(f)]
+    # epochs 1-2 on the 2-epoch cosine, 3-4 where a 4-epoch cosine is: 0.002 x (1 + cos(pi t / 4)) / 2
+    assert lr == pytest.approx([0.002, 0.001, 0.001, 0.002 * (1 + math.cos(3 * math.pi / 4)) / 2], rel=1e-6)
 
 
 def test_config_errors_exit_2(synth, tmp_path, capsys):
