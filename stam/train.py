@@ -309,7 +309,9 @@ def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: 
         rows.append({"epoch": epoch, "train_loss": tl, "train_acc": ta, "val_loss": vl, "val_acc": va,
                      "seconds": time.perf_counter() - t0})
         if log:
-            log(f"pretrain epoch {epoch}: train acc {ta:.3f}, val frame acc {va:.3f} ({rows[-1]['seconds']:.1f} s)")
+            left, sec = epochs - epoch, rows[-1]["seconds"]
+            eta = f"; about {left * sec / 60:.1f} min for the {left} epochs left" if epoch == 1 and left else ""
+            log(f"pretrain epoch {epoch}: train acc {ta:.3f}, val frame acc {va:.3f} ({sec:.1f} s{eta})")
         if va > best:
             best = va
             plain = fold_batchnorm(net.backbone.cpu().eval())
