@@ -2,8 +2,8 @@
 
 Modules: ``backbone`` (AlexNet features and classifier head), ``models`` (the CNN
 baseline, CNN + spatial attention and STAM), ``data`` (reader for ``gelsim generate``
-datasets), ``train``, ``evaluate``, ``experiment`` (the Tables I/II sweep),
+datasets), ``config`` (presets into validated dataclasses), ``train``, ``evaluate``, ``experiment`` (the Tables I/II sweep),
 ``explain`` (Grad-CAM and temporal attention maps) and ``cli`` (the ``stam`` command).
-Bad input raises :class:`gelsim.errors.GelsimError` (one line, exit 2 on the CLI).
+Bad input raises :class:`stam.errors.StamError`, a GelsimError (one line, exit 2 on the CLI).
 """
 __version__ = "0.1.0"

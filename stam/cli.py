@@ -42,9 +42,28 @@ def _onsets(args) -> int:
     res = TactileDataset(args.data).onset_agreement(args.image_size, args.threshold)
     if args.json:
         print_json(res)
-    else:
-        print(f"onset detection (threshold {args.threshold} grey levels): exact {res['exact']}/{res['sequences']}, "
-              f"within one frame {res['within_1']}, not detected {res['not_detected']}")
+        return 0
+    n = res["sequences"]
+    if not n:
+        print("no sequence in the manifest has a contact_onset; nothing to compare")
+        return 0
+
+    def rate(k, ci):
+        return f"{k}/{n} ({100 * k / n:.1f}%, 95% CI {100 * ci[0]:.1f}-{100 * ci[1]:.1f}%)"
+
+    print(f"onset detection (threshold {res['threshold_dn']:g} DN) against the manifest's contact_onset, {n} sequences:")
+    print(f"  exact          {rate(res['exact'], res['exact_ci95'])}")
+    print(f"  within 1 frame {rate(res['within_1'], res['within_1_ci95'])}")
+    print(f"  not detected   {res['not_detected']}")
+    print("  detected - true (frames): " + ", ".join(f"{e}: {c}" for e, c in res["error_histogram"].items()))
+    labels = {"true_onset_0": "true onset at frame 0 (detectable at 1 at the earliest)",
+              "true_onset_1_plus": "true onset at frame 1 or later"}
+    for name, g in res["by_true_onset"].items():
+        if g["sequences"]:
+            print(f"  {labels[name]}: {g['sequences']} sequences, exact {g['exact']}, within 1 {g['within_1']}")
+    print("  confusion (true onset: detected onset x count):")
+    for t, row in res["confusion"].items():
+        print(f"    {t:>3}: " + " ".join(f"{d}x{c}" for d, c in row.items()))
     return 0
 
 
@@ -63,16 +82,23 @@ def _pretrain(args) -> int:
 
 
 def _train(args) -> int:
-    from .train import load_config, train
+    from .train import run_train
 
-    overrides = {"data": args.data, "out": args.out, "model": args.model, "frames": args.frames,
-                 "start": args.start, "epochs": args.epochs, "seed": args.seed, "pretrained": args.pretrained}
+    overrides = {"model": args.model, "frames": args.frames, "start": args.start, "epochs": args.epochs,
+                 "seed": args.seed}
     if args.quiet or args.json:
         overrides["progress"] = False
-    cfg = load_config(args.config, overrides, args.set)
-    res = train(cfg, resume=args.resume, log=None if args.json or args.quiet else print)
+    res = run_train(args.data, args.out, preset=args.preset, overrides=overrides, sets=args.set,
+                    pretrained=args.pretrained, resume=args.resume, dry_run=args.dry_run,
+                    log=None if args.json or args.quiet else print,
+                    note=None if args.quiet else (lambda m: print(m, file=sys.stderr)))
     if args.json:
         print_json(res)
+    elif args.dry_run:
+        print(f"preset {res['preset']}" + (" (chosen by default)" if res["preset_chosen_by_default"] else ""))
+        if res["pretrain"]:
+            print("pretrain: " + ", ".join(f"{k}={v}" for k, v in res["pretrain"].items()))
+        print("train: " + ", ".join(f"{k}={v}" for k, v in res["config"].items()))
     else:
         print(f"best validation accuracy {res['best_val_acc']:.3f} at epoch {res['best_epoch']}: {res['best']}")
     return 0
@@ -116,6 +142,22 @@ def _explain(args) -> int:
     return 0
 
 
+TRAIN_HELP = """train one model (writes config.json, log.csv, last.pt, best.pt)
+
+The configuration is a preset (a TOML file of stam/configs/ or a path: [pretrain] and [train]),
+then --model/--frames/--start/--epochs/--seed, then --set KEY=VALUE. Without --preset:
+  * no CUDA device: the cpu preset. AlexNet at width 0.5 on the central half of each frame at
+    128 px; its backbone is pretrained once on single training frames (8 epochs) and then frozen,
+    so only the attention modules and the head are trained. Measured on the 1,000 sequences of
+    `gelsim generate --preset cpu` on 2 busy cores: 24% validation accuracy (STAM, n = 2, 100
+    classes) after 38 min, mostly pretraining, which reruns and --resume reuse. The library's
+    own defaults (full AlexNet from scratch at 224 px, 58 M parameters) took 3-4 min per epoch
+    there and were still at chance (1%) after 2 of their 30 epochs.
+  * a CUDA device: the paper preset (full AlexNet at 224 px, pretrained, fine-tuned end to end).
+One line on stderr says which was chosen. The resolved configuration is saved in OUT/config.json;
+--resume continues with it."""
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .data import DEFAULT_ONSET_THRESHOLD
     from .models import MODEL_NAMES
@@ -139,9 +181,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--classes", type=int, default=100, help="number of fabric classes")
     s.add_argument("--readings", action="store_true", help="also list the counts of several readings of the paper")
 
-    s = cmd("onsets", _onsets, "how often the detected contact onset matches the manifest's contact_onset")
+    s = cmd("onsets", _onsets, "how often the contact onset detected from the images matches the manifest's "
+            "contact_onset: exact and within-one-frame rates with 95% intervals, error histogram, confusion")
     s.add_argument("--data", required=True, help="dataset directory (gelsim generate --out)")
-    s.add_argument("--threshold", type=float, default=DEFAULT_ONSET_THRESHOLD, help="contact score threshold, grey levels 0-255")
+    s.add_argument("--threshold", type=float, default=DEFAULT_ONSET_THRESHOLD, help="contact score threshold, DN (0-255) of RGB change per frame (from frame 0: twice that)")
     s.add_argument("--image-size", type=int, default=128, help="px, size of the frame cache filled on the way")
 
     s = cmd("pretrain", _pretrain, "pretrain the AlexNet backbone on single training frames (stand-in for ImageNet)")
@@ -160,18 +203,24 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--device", default="auto", help="auto, cpu or cuda")
     s.add_argument("--quiet", action="store_true", help="no progress output")
 
-    s = cmd("train", _train, "train one model (config file plus overrides; writes config.json, log.csv, last.pt, best.pt)")
-    s.add_argument("--config", help="TOML config (keys of stam.train.TrainConfig; see stam/configs/default.toml)")
-    s.add_argument("--data", help="dataset directory")
-    s.add_argument("--out", help="run directory")
-    s.add_argument("--model", choices=MODEL_NAMES, help="model (default from config, else stam)")
-    s.add_argument("--frames", type=int, help="n, frames per window (default from config, else 2)")
+    s = cmd("train", _train, TRAIN_HELP)
+    s.add_argument("--preset", "--config", dest="preset", metavar="NAME|PATH",
+                   help="cpu, paper, or a .toml file with [pretrain]/[train] sections (stam/configs/); "
+                        "default: paper with a CUDA device, cpu without (see above)")
+    s.add_argument("--data", required=True, help="dataset directory")
+    s.add_argument("--out", required=True, help="run directory")
+    s.add_argument("--model", choices=MODEL_NAMES, help="model (default: the preset's, stam)")
+    s.add_argument("--frames", type=int, help="n, frames per window (default: the preset's, 2)")
     s.add_argument("--start", choices=("contact", "zero"), help="window start: first contact frame (clean) or frame 0 (noisy)")
-    s.add_argument("--epochs", type=int, help="epochs (default from config, else 30)")
-    s.add_argument("--seed", type=int, help="random seed (default from config, else 0)")
-    s.add_argument("--pretrained", help="backbone.pt from `stam pretrain` (default: random init)")
-    s.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override any config key (repeatable)")
-    s.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    s.add_argument("--epochs", type=int, help="epochs (default: the preset's: cpu 12, paper 30)")
+    s.add_argument("--seed", type=int, help="random seed (default: the preset's, 0)")
+    s.add_argument("--pretrained", metavar="PATH|none",
+                   help="backbone.pt from `stam pretrain`, or none for random weights (default: the preset's "
+                        "[pretrain] step, run once into OUT/pretrain/)")
+    s.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override any [train] key of the preset, e.g. lr=0.001 (repeatable)")
+    s.add_argument("--resume", action="store_true", help="continue from OUT/last.pt (with the preset in OUT/config.json)")
+    s.add_argument("--dry-run", action="store_true", help="print the resolved preset and config; train nothing")
     s.add_argument("--quiet", action="store_true", help="no progress output")
 
     s = cmd("evaluate", _evaluate, "accuracy, per-class accuracy and confusion matrix (PNG) of a checkpoint")

@@ -9,7 +9,8 @@ video, labels, ...). Videos are read with :func:`gelsim.video.read_video`.
 Decoded frames are resized (squashed) to ``S x S`` px with area averaging and cached as
 ``uint8 (T, S, S, 3)`` ``.npy`` files under ``DIR/.stam-cache/`` (or a user cache directory
 when DIR is read-only), written atomically, so that only the first pass decodes video.
-Beside them a per-frame contact score (``float32 (T,)``) is cached for onset detection.
+Beside them per-frame contact scores (``float32 (T, 2)``) and the sequence's noise level are
+cached (``.npz``) for onset detection.
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from gelsim.errors import GelsimError
+from .errors import StamError
 
 FORMAT = "gelsim-dataset"
 FORMAT_VERSION = 1
@@ -36,54 +37,80 @@ ONSETS = ("detected", "true")
 # [-2, 2] keeps activations of the order of 1 for every channel.
 NORM_MEAN = 0.5
 NORM_STD = 0.25
-# Contact-score thumbnails are frames shrunk with area averaging to a fixed width (the same
-# relative scale at any render resolution): averaging divides per-pixel sensor noise by the
-# shrink factor, while a fabric imprint (millimetres, several thumbnail pixels) survives.
-THUMB_WIDTH_PX = 80
-# Score: the 99.9th percentile over thumbnail pixels of |grey_t - grey_0| (the top ~5 pixels of
-# 80 x 60: a first, small and light touch still moves it). Measured with true onsets from the
-# simulator: on `gelsim generate --preset cpu --fabrics 20` (160x120, 80 of 240 sequences)
-# pre-contact scores reach 5.0 and the onset frame's median is 5.75; on `--preset quick`
-# (320x240) 3.0 and 6.7. A threshold of 5 grey levels put the detection within one frame of
-# the true onset on 80/80 and 30/30 of them (exact on 53/80 and 24/30). These sets were used
-# to choose the value, so they do not test it independently.
-DEFAULT_ONSET_THRESHOLD = 5.0
+# Contact onset from the images. Each frame is shrunk with area averaging to thumbnails
+# THUMB_WIDTH_PX wide (the same relative scale at any render resolution: 2 x 2 px averaged at
+# 320x240, 6 x 6 at 960x720; at least 2 x 2 below 320 px, where whole-DN codec steps in single
+# pixels reach 5.2 DN). The change between two thumbnails is the SCORE_PERCENTILE over
+# pixels of the per-pixel RGB distance |a - b| (L2 over the three channels, DN 0-255): the three
+# LEDs light the gel from 120 degrees apart, so a slope brightens one channel and darkens
+# another and a grey average cancels much of a light first touch. The 99.9th percentile is the
+# top ~19 of 160 x 120 thumbnail pixels, about 0.3 mm^2 of gel: a first touch (2-25 mm^2) fills it.
+# The onset is the first frame t >= 1 whose change from frame t - 1 exceeds the threshold (a touch
+# appears within one frame interval), or whose change from frame 0 exceeds ONSET_DRIFT_FACTOR
+# times it (a contact that builds up more slowly than the threshold per frame).
+#
+# The bar is the larger of a floor in DN and NOISE_FACTOR times the sequence's own noise level
+# (see noise_level). In gelsim's H.264 video (CRF 18) the noise left in still frames is the
+# codec's (whole-DN block shifts; most pixels of consecutive pre-contact frames are bit-identical,
+# so the noise level measures 0) and the floor decides; in lossless video (--format ffv1) the
+# camera's noise is there (0.74 DN at 320x240) and still below the floor; a noisier camera raises
+# the bar with its noise. A bar proportional to the noise alone cannot work on H.264 video (it
+# would be 0), nor one proportional to a typical frame-to-frame change (the 25th percentile of
+# the sequence's changes, times 1.2-6: at best 104/200 and 25/40 within one frame on the sets below).
+THUMB_WIDTH_PX = 160
 SCORE_PERCENTILE = 99.9
+# Chosen on `gelsim generate --preset cpu --fabrics 20` (seed 0, 200 sequences, 320x240) and
+# `--resolution 960x720 --sequences-per-fabric 2 --fabrics 20` (seed 0, 40 sequences), where every
+# threshold from 4.5 to 6.0 DN agreed within one frame on >= 199/200 and 40/40: there the largest
+# pre-contact frame-to-frame change was 4.3 DN (320x240) and 3.5 DN (960x720), the smallest change
+# into a contact frame 7.9 and 18.0 DN. Held out (other seeds), within one frame of the true onset:
+# 399/400 at 320x240 (`--preset cpu --fabrics 40 --seed 1`; 95% CI 98.6-100%) and 178/180 at 960x720
+# (`--fabrics 20 --sequences-per-fabric 3 --seed 1` and `--fabrics 40 ... --seed 2`; 96.0-99.7%);
+# the grey detector before it: 349/400 and 160/180. More in docs/stam.md.
+DEFAULT_ONSET_THRESHOLD = 5.0
+# The change from frame 0 accumulates the codec's drift over a long approach (up to 5.2 DN by
+# frame 12 on the 320x240 set above, 3.8 DN at 960x720), so it needs a higher bar than one
+# frame-to-frame step; any factor from 1.6 to 4 gave the same detections on the tuning sets.
+ONSET_DRIFT_FACTOR = 2.0
+# Pure noise of per-channel standard deviation s gives RGB distances distributed as s x chi(3 dof),
+# whose 99.9th percentile is 4.0 s; 6 s leaves a margin of 1.5 so that noise alone stays below the
+# bar. On lossless 320x240 video (noise level 0.74 DN) the largest pre-contact change was 3.8 s.
+NOISE_FACTOR = 6.0
 
 
 def load_manifest(data_dir: str | Path) -> dict:
-    """Read and check ``DIR/manifest.json``; raise GelsimError for a missing, foreign or
+    """Read and check ``DIR/manifest.json``; raise StamError for a missing, foreign or
     incomplete dataset."""
     d = Path(data_dir)
     path = d / "manifest.json"
     if not d.is_dir():
-        raise GelsimError(f"dataset directory {d} does not exist; pass the --out directory of `gelsim generate`")
+        raise StamError(f"dataset directory {d} does not exist; pass the --out directory of `gelsim generate`")
     if not path.is_file():
-        raise GelsimError(f"{d} has no manifest.json; pass a directory made by `gelsim generate`")
+        raise StamError(f"{d} has no manifest.json; pass a directory made by `gelsim generate`")
     try:
         m = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as e:
-        raise GelsimError(f"cannot read {path} ({e}); regenerate the dataset") from None
+        raise StamError(f"cannot read {path} ({e}); regenerate the dataset") from None
     if not isinstance(m, dict) or m.get("format") != FORMAT:
-        raise GelsimError(f"{path} is not a gelsim dataset manifest (format {m.get('format') if isinstance(m, dict) else None!r}); "
+        raise StamError(f"{path} is not a gelsim dataset manifest (format {m.get('format') if isinstance(m, dict) else None!r}); "
                           "pass a directory made by `gelsim generate`")
     if m.get("format_version") != FORMAT_VERSION:
-        raise GelsimError(f"{path} has format_version {m.get('format_version')!r}, this reader knows {FORMAT_VERSION}; "
+        raise StamError(f"{path} has format_version {m.get('format_version')!r}, this reader knows {FORMAT_VERSION}; "
                           "regenerate the dataset or upgrade stam")
     if m.get("complete") is not True:
-        raise GelsimError(f"dataset {d} is incomplete (complete: false); rerun `gelsim generate` to finish it")
+        raise StamError(f"dataset {d} is incomplete (complete: false); rerun `gelsim generate` to finish it")
     for key in ("fabrics", "sequences"):
         if not isinstance(m.get(key), list) or not m[key]:
-            raise GelsimError(f"{path} has no {key}; regenerate the dataset")
+            raise StamError(f"{path} has no {key}; regenerate the dataset")
     ids = {f["id"] for f in m["fabrics"]}
     for s in m["sequences"]:
         for key in ("id", "fabric_id", "num_frames", "split", "video"):
             if key not in s:
-                raise GelsimError(f"sequence {s.get('id', '?')} in {path} lacks {key!r}; regenerate the dataset")
+                raise StamError(f"sequence {s.get('id', '?')} in {path} lacks {key!r}; regenerate the dataset")
         if s["fabric_id"] not in ids:
-            raise GelsimError(f"sequence {s['id']} names unknown fabric {s['fabric_id']}; regenerate the dataset")
+            raise StamError(f"sequence {s['id']} names unknown fabric {s['fabric_id']}; regenerate the dataset")
         if s["split"] not in SPLITS:
-            raise GelsimError(f"sequence {s['id']} has split {s['split']!r}, expected one of {SPLITS}")
+            raise StamError(f"sequence {s['id']} has split {s['split']!r}, expected one of {SPLITS}")
     return m
 
 
@@ -107,30 +134,87 @@ def default_cache_dir(data_dir: Path) -> Path:
     return base / hashlib.sha256(str(data_dir.resolve()).encode()).hexdigest()[:16]
 
 
-def _save_atomic(path: Path, arr: np.ndarray) -> None:
+def _save_atomic(path: Path, arr: np.ndarray | None = None, **arrays: np.ndarray) -> None:
+    """Write ``arr`` as .npy, or ``arrays`` as .npz, under a temporary name, then rename."""
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     with open(tmp, "wb") as f:
-        np.save(f, arr)
+        if arrays:
+            np.savez(f, **arrays)
+        else:
+            np.save(f, arr)
     os.replace(tmp, path)
 
 
-def contact_scores(frames: np.ndarray) -> np.ndarray:
-    """Per-frame contact score ``float32 (T,)``, 0-255 grey levels: the SCORE_PERCENTILE over
-    pixels of ``|thumb_t - thumb_0|`` on grey thumbnails THUMB_WIDTH_PX wide."""
+def thumbnails(frames: np.ndarray) -> np.ndarray:
+    """``uint8 (T, H, W, 3)`` frames -> ``float32 (T, h, w, 3)`` thumbnails THUMB_WIDTH_PX wide
+    (area averaging; frames narrower than that are kept at their size)."""
     t, h, w = frames.shape[:3]
-    tw = min(w, THUMB_WIDTH_PX)
+    tw = max(1, min(w // 2, THUMB_WIDTH_PX))
     size = (tw, max(1, round(h * tw / w)))
-    # Float before shrinking: averaging in uint8 would quantise the score to whole grey levels.
-    thumbs = np.stack([cv2.resize(cv2.cvtColor(f, cv2.COLOR_RGB2GRAY).astype(np.float32), size,
-                                  interpolation=cv2.INTER_AREA) for f in frames])
-    diff = np.abs(thumbs - thumbs[:1]).reshape(t, -1)
-    return np.percentile(diff, SCORE_PERCENTILE, axis=1).astype(np.float32)
+    # Float before shrinking: averaging in uint8 would quantise the score to whole DN.
+    return np.stack([cv2.resize(f.astype(np.float32), size, interpolation=cv2.INTER_AREA) for f in frames])
 
 
-def detect_onset(scores: np.ndarray, threshold: float = DEFAULT_ONSET_THRESHOLD) -> int | None:
-    """Index of the first frame whose contact score exceeds ``threshold`` (grey levels), or None."""
-    above = np.flatnonzero(np.asarray(scores) > threshold)
+def change_score(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Change between thumbnails ``a`` and ``b`` (``float32 (..., h, w, 3)``, broadcast): the
+    SCORE_PERCENTILE over pixels of the RGB distance ``|a - b|``, DN; shape ``a.shape[:-3]``."""
+    d = np.sqrt(np.square(a - b).sum(-1))
+    return np.percentile(d.reshape(*d.shape[:-2], -1), SCORE_PERCENTILE, axis=-1).astype(np.float32)
+
+
+def noise_level(thumbs: np.ndarray) -> float:
+    """Noise of a sequence's thumbnails ``float32 (T, h, w, 3)``, DN: the per-channel standard
+    deviation of frame-to-frame differences, 1.4826 x their median absolute deviation over
+    pixels and channels (robust to a contact covering less than half the gel), for the quietest
+    pair of consecutive frames (a still sensor, whenever it occurs); 0 for a single frame."""
+    if thumbs.shape[0] < 2:
+        return 0.0
+    d = (thumbs[1:] - thumbs[:-1]).reshape(thumbs.shape[0] - 1, -1)
+    mad = np.median(np.abs(d - np.median(d, axis=1, keepdims=True)), axis=1)
+    return float(1.4826 * mad.min())  # 1.4826: MAD to standard deviation for Gaussian noise
+
+
+def contact_scores(frames: np.ndarray) -> tuple[np.ndarray, float]:
+    """Per-frame contact scores of ``uint8 (T, H, W, 3)`` frames: ``float32 (T, 2)``, DN, column 0
+    the change from frame 0, column 1 the change from the previous frame (0 for frame 0; see
+    :func:`change_score`), and the sequence's noise level in DN (:func:`noise_level`)."""
+    th = thumbnails(frames)
+    out = np.zeros((th.shape[0], 2), np.float32)
+    out[:, 0] = change_score(th, th[:1])
+    out[1:, 1] = change_score(th[1:], th[:-1])
+    return out, noise_level(th)
+
+
+def onset_bar(threshold: float, noise_dn: float) -> float:
+    """The frame-to-frame change, DN, above which a frame counts as a touch."""
+    return max(threshold, NOISE_FACTOR * noise_dn)
+
+
+def detect_onset(scores: np.ndarray, threshold: float = DEFAULT_ONSET_THRESHOLD, noise_dn: float = 0.0) -> int | None:
+    """First contact frame from :func:`contact_scores`' ``(T, 2)`` scores and noise level: the
+    first frame ``t >= 1`` whose change from frame ``t - 1`` exceeds the bar (``threshold`` DN,
+    or NOISE_FACTOR x ``noise_dn`` if larger) or whose change from frame 0 exceeds
+    ONSET_DRIFT_FACTOR x the bar; None when there is none. Frame 0 is the reference, so a contact
+    already under way there is reported at frame 1 at the earliest."""
+    s = np.asarray(scores, np.float64)
+    if s.ndim != 2 or s.shape[1] != 2:
+        raise StamError(f"contact scores must have shape (T, 2), got {s.shape}; compute them with contact_scores")
+    bar = onset_bar(threshold, noise_dn)
+    hit = (s[:, 1] > bar) | (s[:, 0] > ONSET_DRIFT_FACTOR * bar)
+    hit[0] = False
+    above = np.flatnonzero(hit)
     return int(above[0]) if above.size else None
+
+
+def wilson_interval(k: int, n: int, z: float = 1.96) -> tuple[float, float] | None:
+    """Wilson score interval of a proportion k/n (z = 1.96: 95%); None for n = 0. Unlike the
+    normal approximation it stays inside [0, 1] when k is 0 or n."""
+    if n <= 0:
+        return None
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return float(max(0.0, centre - half)), float(min(1.0, centre + half))
 
 
 @dataclass
@@ -149,7 +233,7 @@ class TactileDataset:
 
     def __init__(self, data_dir: str | Path, cache_dir: str | Path | None = None, crop: float = 1.0):
         if not 0.05 <= crop <= 1.0:
-            raise GelsimError(f"crop {crop} is out of range; give the kept fraction of the frame, 0.05-1")
+            raise StamError(f"crop {crop} is out of range; give the kept fraction of the frame, 0.05-1")
         # crop: side of a centred square kept from each frame, as a fraction of the frame's shorter
         # side (1.0 = the whole frame squashed to a square, as the paper resized 960x720 to 224x224).
         # A smaller crop trades field of view for texture resolution at a given input size.
@@ -172,12 +256,12 @@ class TactileDataset:
 
     def split(self, name: str) -> list[Sequence]:
         if name not in SPLITS:
-            raise GelsimError(f"unknown split {name!r}; choose one of {', '.join(SPLITS)}")
+            raise StamError(f"unknown split {name!r}; choose one of {', '.join(SPLITS)}")
         return [s for s in self.sequences if s.split == name]
 
     def _paths(self, seq: Sequence, size: int) -> tuple[Path, Path]:
         d = self.cache_dir / (f"{size}px" if self.crop == 1.0 else f"{size}px-crop{self.crop:g}")
-        return d / f"{seq.id}.npy", self.cache_dir / "scores-v3" / f"{seq.id}.npy"
+        return d / f"{seq.id}.npy", self.cache_dir / "scores-v4" / f"{seq.id}.npz"
 
     def prepare(self, seq: Sequence, size: int) -> None:
         """Decode ``seq`` once and cache its resized frames and contact scores."""
@@ -187,14 +271,15 @@ class TactileDataset:
         from gelsim.video import read_video
 
         if not seq.video.exists():
-            raise GelsimError(f"video {seq.video} listed in the manifest is missing; regenerate the dataset")
+            raise StamError(f"video {seq.video} listed in the manifest is missing; regenerate the dataset")
         frames = read_video(seq.video)
         if frames.shape[0] < 1:
-            raise GelsimError(f"video {seq.video} has no frames; regenerate the dataset")
+            raise StamError(f"video {seq.video} has no frames; regenerate the dataset")
         fpath.parent.mkdir(parents=True, exist_ok=True)
         spath.parent.mkdir(parents=True, exist_ok=True)
         if not spath.is_file():
-            _save_atomic(spath, contact_scores(frames))
+            scores, noise = contact_scores(frames)
+            _save_atomic(spath, scores=scores, noise_dn=np.float32(noise))
         if not fpath.is_file():
             small = np.stack([cv2.resize(self._crop(f), (size, size), interpolation=cv2.INTER_AREA)
                               for f in frames])
@@ -213,37 +298,64 @@ class TactileDataset:
         self.prepare(seq, size)
         return np.load(self._paths(seq, size)[0], mmap_mode="r")
 
-    def scores(self, seq: Sequence, size: int) -> np.ndarray:
+    def scores(self, seq: Sequence, size: int) -> tuple[np.ndarray, float]:
+        """Cached :func:`contact_scores` of ``seq``: ``float32 (T, 2)`` and the noise level, DN."""
         self.prepare(seq, size)
-        return np.load(self._paths(seq, size)[1])
+        with np.load(self._paths(seq, size)[1]) as z:
+            return z["scores"], float(z["noise_dn"])
 
     def onset(self, seq: Sequence, size: int, mode: str = "detected",
               threshold: float = DEFAULT_ONSET_THRESHOLD) -> int | None:
         """First contact frame: detected from the images (the paper's way) or the manifest's."""
         if mode == "true":
             return seq.true_onset
-        return detect_onset(self.scores(seq, size), threshold)
+        scores, noise = self.scores(seq, size)
+        return detect_onset(scores, threshold, noise)
 
     def onset_agreement(self, size: int, threshold: float = DEFAULT_ONSET_THRESHOLD) -> dict:
-        """How often the detected onset matches the manifest's ``contact_onset``."""
+        """How often the detected onset matches the manifest's ``contact_onset``: counts, rates
+        with 95% Wilson intervals, the histogram of detected - true (frames), the same for
+        sequences whose true onset is frame 0 (detectable at frame 1 at the earliest) and
+        later, and the confusion of true (rows) against detected onsets."""
+        errors: dict[int, int] = {}
+        by_start = {"true_onset_0": [0, 0, 0], "true_onset_1_plus": [0, 0, 0]}  # sequences, exact, within 1
+        confusion: dict[int, dict[str, int]] = {}
         exact = within1 = missed = total = 0
-        errors = []
         for s in self.sequences:
             if s.true_onset is None:
                 continue
             d = self.onset(s, size, "detected", threshold)
             total += 1
+            row = confusion.setdefault(int(s.true_onset), {})
+            key = "none" if d is None else str(d)
+            row[key] = row.get(key, 0) + 1
+            group = by_start["true_onset_0" if s.true_onset == 0 else "true_onset_1_plus"]
+            group[0] += 1
             if d is None:
                 missed += 1
                 continue
-            errors.append(d - s.true_onset)
-            exact += d == s.true_onset
-            within1 += abs(d - s.true_onset) <= 1
+            e = d - int(s.true_onset)
+            errors[e] = errors.get(e, 0) + 1
+            exact += e == 0
+            within1 += abs(e) <= 1
+            group[1] += e == 0
+            group[2] += abs(e) <= 1
         return {"sequences": total, "exact": exact, "within_1": within1, "not_detected": missed,
                 "exact_rate": exact / total if total else None,
                 "within_1_rate": within1 / total if total else None,
-                "mean_error_frames": float(np.mean(errors)) if errors else None,
-                "threshold_grey": threshold}
+                "exact_ci95": wilson_interval(exact, total), "within_1_ci95": wilson_interval(within1, total),
+                "mean_error_frames": (sum(e * c for e, c in errors.items()) / sum(errors.values())
+                                      if errors else None),
+                "error_histogram": {str(e): errors[e] for e in sorted(errors)},
+                "by_true_onset": {k: {"sequences": v[0], "exact": v[1], "within_1": v[2]} for k, v in by_start.items()},
+                "confusion": {str(t): {k: confusion[t][k] for k in sorted(confusion[t], key=_detected_order)}
+                              for t in sorted(confusion)},
+                "threshold_dn": threshold, "drift_factor": ONSET_DRIFT_FACTOR,
+                "thumb_width_px": THUMB_WIDTH_PX, "score_percentile": SCORE_PERCENTILE}
+
+
+def _detected_order(key: str) -> tuple[bool, int]:
+    return key == "none", 0 if key == "none" else int(key)
 
 
 def normalise(frames: np.ndarray) -> torch.Tensor:
@@ -268,16 +380,16 @@ class WindowDataset(Dataset):
                  image_size: int = 224, onset: str = "detected",
                  threshold: float = DEFAULT_ONSET_THRESHOLD, features: dict | None = None):
         if start not in STARTS:
-            raise GelsimError(f"unknown start {start!r}; choose one of {', '.join(STARTS)}")
+            raise StamError(f"unknown start {start!r}; choose one of {', '.join(STARTS)}")
         if onset not in ONSETS:
-            raise GelsimError(f"unknown onset {onset!r}; choose one of {', '.join(ONSETS)}")
+            raise StamError(f"unknown onset {onset!r}; choose one of {', '.join(ONSETS)}")
         self.data, self.n, self.size, self.features = data, n_frames, image_size, features
         seqs = data.split(split)
         if not seqs:
-            raise GelsimError(f"dataset {data.dir} has no {split!r} sequences; regenerate it with a larger preset")
+            raise StamError(f"dataset {data.dir} has no {split!r} sequences; regenerate it with a larger preset")
         shortest = min(s.num_frames for s in seqs)
         if not 1 <= n_frames <= shortest:
-            raise GelsimError(f"n_frames={n_frames} is outside 1..{shortest} (the shortest {split} sequence); "
+            raise StamError(f"n_frames={n_frames} is outside 1..{shortest} (the shortest {split} sequence); "
                               "choose a smaller n")
         self.items: list[tuple[Sequence, int]] = []
         self.shifted = self.undetected = 0
@@ -302,7 +414,7 @@ class WindowDataset(Dataset):
             return self.features[seq.id][first:first + self.n].float(), seq.label
         frames = self.data.frames(seq, self.size)
         if frames.shape[0] < first + self.n:
-            raise GelsimError(f"video of {seq.id} has {frames.shape[0]} frames, the manifest says "
+            raise StamError(f"video of {seq.id} has {frames.shape[0]} frames, the manifest says "
                               f"{seq.num_frames}; regenerate the dataset")
         return normalise(frames[first:first + self.n]), seq.label
 

@@ -20,20 +20,18 @@ import hashlib
 import json
 import os
 import time
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from gelsim.errors import GelsimError
-
 from .backbone import AlexNetFeatures
-from .data import DEFAULT_ONSET_THRESHOLD, SPLITS, TactileDataset, backbone_features
+from .config import PretrainConfig, load_preset, resolve_train
+from .data import SPLITS, TactileDataset, backbone_features
+from .errors import StamError
 from .evaluate import evaluate
-from .train import FIELDS, load_backbone, load_checkpoint, load_config, pretrain, save_atomic, train
+from .train import load_backbone, pretrain, save_atomic, train
 
-CONFIG_DIR = Path(__file__).parent / "configs"
 SETTINGS = {"clean": "contact", "noisy": "zero"}
 MODEL_LABELS = {"cnn": "CNNs", "cnn_sa": "CNNs+Spatial Attention", "stam": "STAM"}
 # Tables I and II of Cao et al. (IROS 2020), accuracy in %, n = 2..7.
@@ -46,29 +44,6 @@ PAPER_TABLES = {
               "stam": [72.00, 72.20, 75.80, 76.61, 80.80, 80.20]},
 }
 PAPER_FRAMES = [2, 3, 4, 5, 6, 7]
-PRETRAIN_KEYS = ("width", "image_size", "epochs", "batch_size", "lr", "optimizer", "contact_only", "frame_stride",
-                 "batchnorm")
-SWEEP_KEYS = ("models", "frames", "settings", "seeds")
-
-
-def load_preset(preset: str) -> dict:
-    """Read ``stam/configs/<preset>.toml`` (or a path) into {pretrain, train, sweep} dicts."""
-    path = Path(preset) if preset.endswith(".toml") else CONFIG_DIR / f"{preset}.toml"
-    if not path.is_file():
-        names = sorted(p.stem for p in CONFIG_DIR.glob("*.toml") if p.stem != "default")
-        raise GelsimError(f"unknown preset {preset!r}; choose one of {', '.join(names)} or a .toml path")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as e:
-        raise GelsimError(f"preset {path} is not valid TOML ({e}); fix it") from None
-    for section, allowed in (("pretrain", PRETRAIN_KEYS), ("train", tuple(FIELDS)), ("sweep", SWEEP_KEYS)):
-        for k in raw.get(section, {}):
-            if k not in allowed:
-                raise GelsimError(f"unknown key {k!r} in [{section}] of {path}; valid: {', '.join(allowed)}")
-    for section in raw:
-        if section not in ("pretrain", "train", "sweep"):
-            raise GelsimError(f"unknown section [{section}] in {path}; use [pretrain], [train], [sweep]")
-    return {s: dict(raw.get(s, {})) for s in ("pretrain", "train", "sweep")}
 
 
 def _feature_cache(out: Path, backbone_path: Path, data: TactileDataset, width: float, image_size: int,
@@ -92,48 +67,46 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
                    settings: list[str] | None = None, overrides: dict | None = None, log=print) -> dict:
     """Run (or resume) the sweep; returns {"cells": [...], "tables": {...}, paths}."""
     cfg = load_preset(preset)
-    sweep = cfg["sweep"]
-    models = models or sweep.get("models", list(MODEL_LABELS))
-    frames = frames or sweep.get("frames", PAPER_FRAMES)
-    settings = settings or sweep.get("settings", list(SETTINGS))
-    seeds = seeds if seeds is not None else int(sweep.get("seeds", 1))
+    sweep = cfg.sweep
+    models = list(models or sweep.models)
+    frames = list(frames or sweep.frames)
+    settings = list(settings or sweep.settings)
+    seeds = seeds if seeds is not None else sweep.seeds
     for s in settings:
         if s not in SETTINGS:
-            raise GelsimError(f"unknown setting {s!r}; choose clean or noisy")
+            raise StamError(f"unknown setting {s!r}; choose clean or noisy")
     if seeds < 1:
-        raise GelsimError(f"--seeds must be at least 1, got {seeds}")
+        raise StamError(f"--seeds must be at least 1, got {seeds}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    crop = float(cfg["train"].get("crop", 1.0))
+    crop = cfg.train.crop
     data = TactileDataset(data_dir, crop=crop)
     for split in SPLITS:
         if not data.split(split):
-            raise GelsimError(f"dataset {data_dir} has no {split!r} sequences; generate at least 10 sequences "
+            raise StamError(f"dataset {data_dir} has no {split!r} sequences; generate at least 10 sequences "
                               "per fabric for the 7:2:1 split")
     shortest = min(s.num_frames for s in data.sequences)
     if max(frames) > shortest or min(frames) < 1:
-        raise GelsimError(f"frames {frames} outside 1..{shortest} (the shortest sequence); choose smaller n")
+        raise StamError(f"frames {frames} outside 1..{shortest} (the shortest sequence); choose smaller n")
 
     t0 = time.perf_counter()
-    pre = cfg["pretrain"]
-    size = int(cfg["train"].get("image_size", pre.get("image_size", 224)))
-    onsets = data.onset_agreement(size, float(cfg["train"].get("onset_threshold", DEFAULT_ONSET_THRESHOLD)))
+    pre = cfg.pretrain or PretrainConfig()
+    size = cfg.train.image_size
+    onsets = data.onset_agreement(size, cfg.train.onset_threshold)
     (out / "onsets.json").write_text(json.dumps(onsets, indent=1))
     if log:
         log(f"onset detection: exact {onsets['exact']}/{onsets['sequences']}, within 1 frame "
             f"{onsets['within_1']}, not detected {onsets['not_detected']}")
     pt = pretrain(data_dir, out / "pretrain", data=data, progress=False, log=log, crop=crop,
-                  onset_threshold=float(cfg["train"].get("onset_threshold", DEFAULT_ONSET_THRESHOLD)),
-                  **{k: pre[k] for k in PRETRAIN_KEYS if k in pre})
+                  onset_threshold=cfg.train.onset_threshold, **dataclasses.asdict(pre))
     t_pre = time.perf_counter() - t0
     if log:
         log(f"pretrained backbone: val frame accuracy {pt['val_acc']:.3f} ({t_pre:.0f} s)")
-    base = dict(cfg["train"])
-    base.update(overrides or {})
-    base.update({"data": str(data_dir), "pretrained": pt["path"]})
+    base = resolve_train(cfg.train, {**(overrides or {}), "data": str(data_dir), "pretrained": pt["path"],
+                                     "preset": cfg.name}, "the experiment's overrides")
     feats = None
-    if base.get("freeze_backbone"):
-        feats = _feature_cache(out, Path(pt["path"]), data, float(base.get("width", 1.0)), size, log)
+    if base.freeze_backbone:
+        feats = _feature_cache(out, Path(pt["path"]), data, base.width, size, log)
 
     cells = []
     todo = [(seed, setting, n, m) for seed in range(seeds) for setting in settings for n in frames for m in models]
@@ -144,8 +117,8 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
             cells.append(json.loads(res_path.read_text()))
             continue
         c0 = time.perf_counter()
-        run_cfg = load_config(None, {**base, "out": str(cell_dir), "model": m, "frames": n,
-                                     "start": SETTINGS[setting], "seed": seed})
+        run_cfg = resolve_train(base, {"out": str(cell_dir), "model": m, "frames": n,
+                                       "start": SETTINGS[setting], "seed": seed}, "the sweep")
         summary = train(run_cfg, features=feats, data=data, log=None)
         ev = evaluate(summary["best"], split="test", data=data, features=feats)
         cell = {"setting": setting, "frames": n, "model": m, "seed": seed, "test_acc": ev["accuracy"],

@@ -15,9 +15,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from gelsim.errors import GelsimError
-
 from .data import TactileDataset, WindowDataset
+from .errors import StamError
 from .train import model_from_checkpoint
 
 
@@ -58,7 +57,7 @@ def temporal_map(model, x: torch.Tensor, query: tuple[int, int] | None = None) -
     frame the 3 most attended cells (row, col)}.
     """
     if model.temporal is None:
-        raise GelsimError(f"model {model.name} has no temporal attention; pass a stam checkpoint")
+        raise StamError(f"model {model.name} has no temporal attention; pass a stam checkpoint")
     model.eval()
     f = model.frame_features(x)
     if model.spatial is not None:
@@ -71,7 +70,7 @@ def temporal_map(model, x: torch.Tensor, query: tuple[int, int] | None = None) -
     else:
         r, c = query
         if not (0 <= r < h and 0 <= c < w):
-            raise GelsimError(f"query {query} outside the {h}x{w} feature map; choose row < {h}, col < {w}")
+            raise StamError(f"query {query} outside the {h}x{w} feature map; choose row < {h}, col < {w}")
     row = maps[r * w + c].view(n, h, w).numpy().astype(np.float32)
     top3 = [[divmod(int(i), w) for i in np.argsort(fr.ravel())[::-1][:3]] for fr in row]
     return {"map": row, "query": (r, c), "top3": top3}
@@ -98,12 +97,12 @@ def explain(checkpoints: list[str], sequence: str | None = None, out: str | Path
     import matplotlib.pyplot as plt
 
     if not checkpoints:
-        raise GelsimError("no checkpoint given; pass --checkpoint RUN/best.pt (repeatable)")
+        raise StamError("no checkpoint given; pass --checkpoint RUN/best.pt (repeatable)")
     loaded = [model_from_checkpoint(c) for c in checkpoints]
     cfg0 = loaded[0][1]
     for _, cfg, _ in loaded[1:]:
         if (cfg.frames, cfg.start, cfg.image_size) != (cfg0.frames, cfg0.start, cfg0.image_size):
-            raise GelsimError("checkpoints differ in frames, start or image_size; explain runs of one setting")
+            raise StamError("checkpoints differ in frames, start or image_size; explain runs of one setting")
     data = TactileDataset(data_dir or cfg0.data, cfg0.cache_dir or None, crop=cfg0.crop)
     ds = WindowDataset(data, split, cfg0.frames, cfg0.start, cfg0.image_size, cfg0.onset, cfg0.onset_threshold)
     ids = [s.id for s, _ in ds.items]
@@ -112,7 +111,7 @@ def explain(checkpoints: list[str], sequence: str | None = None, out: str | Path
     elif sequence in ids:
         idx = ids.index(sequence)
     else:
-        raise GelsimError(f"sequence {sequence!r} is not in the {split} split; pick one of {', '.join(ids[:5])}, ...")
+        raise StamError(f"sequence {sequence!r} is not in the {split} split; pick one of {', '.join(ids[:5])}, ...")
     x, label = ds[idx]
     seq, first = ds.items[idx]
     x = x[None]

@@ -33,9 +33,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from gelsim.errors import GelsimError
-
 from .backbone import AlexNetFeatures, AlexNetHead, feature_size
+from .errors import StamError
 
 MODEL_NAMES = ("cnn", "cnn_sa", "stam")
 FUSIONS = ("mean_logits", "mean_features", "max_features")
@@ -84,7 +83,7 @@ class TemporalAttention(nn.Module):
                  gamma_init: float = 0.0):
         super().__init__()
         if residual_gain not in RESIDUAL_GAINS:
-            raise GelsimError(f"unknown residual_gain {residual_gain!r}; choose one of {', '.join(RESIDUAL_GAINS)}")
+            raise StamError(f"unknown residual_gain {residual_gain!r}; choose one of {', '.join(RESIDUAL_GAINS)}")
         cq = max(1, channels // qk_reduction)
         self.q = nn.Conv3d(channels, cq, kernel_size=1)
         self.k = nn.Conv3d(channels, cq, kernel_size=1)
@@ -121,18 +120,18 @@ class SequenceModel(nn.Module):
                  hidden: int = 0):
         super().__init__()
         if name not in MODEL_NAMES:
-            raise GelsimError(f"unknown model {name!r}; choose one of {', '.join(MODEL_NAMES)}")
+            raise StamError(f"unknown model {name!r}; choose one of {', '.join(MODEL_NAMES)}")
         if fusion not in FUSIONS:
-            raise GelsimError(f"unknown fusion {fusion!r}; choose one of {', '.join(FUSIONS)}")
+            raise StamError(f"unknown fusion {fusion!r}; choose one of {', '.join(FUSIONS)}")
         if combine not in COMBINES:
-            raise GelsimError(f"unknown combine {combine!r}; choose one of {', '.join(COMBINES)}")
+            raise StamError(f"unknown combine {combine!r}; choose one of {', '.join(COMBINES)}")
         if n_frames < 1:
-            raise GelsimError(f"n_frames must be at least 1, got {n_frames}; use 2..7 as the paper")
+            raise StamError(f"n_frames must be at least 1, got {n_frames}; use 2..7 as the paper")
         if modules < 1 or qk_reduction < 1:
-            raise GelsimError("modules and qk_reduction must be at least 1; use the defaults 10 and 8")
+            raise StamError("modules and qk_reduction must be at least 1; use the defaults 10 and 8")
         fs = feature_size(image_size)
         if fs < 1:
-            raise GelsimError(f"image_size {image_size} px is too small for AlexNet; use at least 64")
+            raise StamError(f"image_size {image_size} px is too small for AlexNet; use at least 64")
         self.name, self.n_frames, self.num_classes, self.fusion = name, n_frames, num_classes, fusion
         self.combine = combine
         self.backbone = AlexNetFeatures(width)
@@ -181,7 +180,7 @@ class SequenceModel(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if x.ndim != 5 or x.shape[1] != self.n_frames:
-            raise GelsimError(f"{self.name} expects B x {self.n_frames} x 3 x S x S input, got {tuple(x.shape)}")
+            raise StamError(f"{self.name} expects B x {self.n_frames} x 3 x S x S input, got {tuple(x.shape)}")
         return self.forward_features(self.frame_features(x))
 
 

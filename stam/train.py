@@ -23,8 +23,6 @@ import os
 import random
 import sys
 import time
-import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -32,131 +30,18 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import DataLoader
 
-from gelsim.errors import GelsimError
-
 from . import models
 from .backbone import AlexNet, feature_size, fold_batchnorm
+from .config import TrainConfig, default_preset, load_preset, parse_sets, resolve_train
 from .data import DEFAULT_ONSET_THRESHOLD, FrameDataset, TactileDataset, WindowDataset, backbone_features
-
-
-@dataclass
-class TrainConfig:
-    """Everything a run depends on. Units: px for sizes, frames for n, sequences for batches."""
-
-    data: str = ""                 # dataset directory (gelsim generate --out)
-    out: str = ""                  # run directory
-    model: str = "stam"            # cnn | cnn_sa | stam
-    frames: int = 2                # n consecutive frames per window
-    start: str = "contact"         # contact (clean) | zero (noisy)
-    onset: str = "detected"        # detected | true
-    onset_threshold: float = DEFAULT_ONSET_THRESHOLD  # grey levels
-    image_size: int = 224          # px
-    crop: float = 1.0              # centred square kept from each frame, fraction of its shorter side
-    width: float = 1.0             # AlexNet channel multiplier
-    fusion: str = "mean_logits"
-    modules: int = 10
-    combine: str = "mean"
-    qk_reduction: int = 8
-    residual_gain: str = "learned"
-    sa_batchnorm: bool = False
-    dropout: float = 0.5
-    hidden: int = 0                # fc6/fc7 width (0 = 4096 x width)
-    pretrained: str = ""           # backbone checkpoint from `stam pretrain` ("" = random init)
-    freeze_backbone: bool = False
-    epochs: int = 30
-    batch_size: int = 32
-    optimizer: str = "sgd"         # sgd | adam
-    lr: float = 0.01
-    momentum: float = 0.9
-    weight_decay: float = 5e-4
-    lr_schedule: str = "cosine"    # cosine | constant
-    seed: int = 0
-    threads: int = 0               # torch CPU threads (0 = torch's default)
-    workers: int = 0               # DataLoader worker processes
-    device: str = "auto"           # auto | cpu | cuda
-    cache_dir: str = ""            # frame cache ("" = DIR/.stam-cache)
-    progress: bool = True          # tqdm progress bar
-
-    def model_options(self) -> dict:
-        return {"width": self.width, "image_size": self.image_size, "fusion": self.fusion,
-                "modules": self.modules, "combine": self.combine, "qk_reduction": self.qk_reduction,
-                "residual_gain": self.residual_gain, "sa_batchnorm": self.sa_batchnorm, "dropout": self.dropout,
-                "hidden": self.hidden}
-
-
-FIELDS = {f.name: f for f in dataclasses.fields(TrainConfig)}
-
-
-def _coerce(key: str, value, source: str):
-    if key not in FIELDS:
-        raise GelsimError(f"unknown config key {key!r} in {source}; valid keys: {', '.join(FIELDS)}")
-    kind = type(FIELDS[key].default)
-    if kind is bool:
-        if isinstance(value, str):
-            if value.lower() in ("1", "true", "yes", "on"):
-                return True
-            if value.lower() in ("0", "false", "no", "off"):
-                return False
-            raise GelsimError(f"{key}={value!r} in {source} is not a boolean; use true or false")
-        if isinstance(value, bool):
-            return value
-    try:
-        if kind is int and isinstance(value, float) and not value.is_integer():
-            raise ValueError
-        return kind(value)
-    except (TypeError, ValueError):
-        raise GelsimError(f"{key}={value!r} in {source} is not a valid {kind.__name__}; fix the value") from None
-
-
-def load_config(path: str | Path | None = None, overrides: dict | None = None,
-                sets: list[str] | None = None) -> TrainConfig:
-    """Defaults, then the TOML file ``path``, then ``overrides`` (dict), then ``sets`` ("key=value")."""
-    values: dict = {}
-    if path:
-        p = Path(path)
-        try:
-            raw = tomllib.loads(p.read_text())
-        except FileNotFoundError:
-            raise GelsimError(f"config file {p} not found; check the path") from None
-        except tomllib.TOMLDecodeError as e:
-            raise GelsimError(f"config file {p} is not valid TOML ({e}); fix it") from None
-        for k, v in raw.items():
-            values[k] = _coerce(k, v, str(p))
-    for k, v in (overrides or {}).items():
-        if v is not None:
-            values[k] = _coerce(k, v, "the command line")
-    for item in sets or []:
-        if "=" not in item:
-            raise GelsimError(f"--set {item!r} is not key=value; write e.g. --set lr=0.001")
-        k, v = item.split("=", 1)
-        values[k.strip()] = _coerce(k.strip(), v.strip(), "--set")
-    cfg = TrainConfig(**values)
-    validate(cfg)
-    return cfg
-
-
-def validate(cfg: TrainConfig) -> None:
-    checks = [
-        (cfg.model in models.MODEL_NAMES, f"model {cfg.model!r} unknown; choose {', '.join(models.MODEL_NAMES)}"),
-        (cfg.optimizer in ("sgd", "adam"), f"optimizer {cfg.optimizer!r} unknown; choose sgd or adam"),
-        (cfg.lr_schedule in ("cosine", "constant"), f"lr_schedule {cfg.lr_schedule!r} unknown; choose cosine or constant"),
-        (cfg.epochs >= 1 and cfg.batch_size >= 1, "epochs and batch_size must be at least 1"),
-        (cfg.lr > 0, f"lr must be positive, got {cfg.lr}"),
-        (0 < cfg.width <= 4, f"width must be in (0, 4], got {cfg.width}"),
-        (cfg.image_size >= 64, f"image_size must be at least 64 px, got {cfg.image_size}"),
-        (cfg.frames >= 1, f"frames must be at least 1, got {cfg.frames}"),
-        (cfg.device in ("auto", "cpu", "cuda"), f"device {cfg.device!r} unknown; choose auto, cpu or cuda"),
-    ]
-    for ok, msg in checks:
-        if not ok:
-            raise GelsimError(msg)
+from .errors import StamError
 
 
 def resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cuda" and not torch.cuda.is_available():
-        raise GelsimError("device cuda requested but no GPU is available; use --set device=cpu")
+        raise StamError("device cuda requested but no GPU is available; use --set device=cpu")
     return torch.device(name)
 
 
@@ -170,11 +55,11 @@ def load_checkpoint(path: str | Path) -> dict:
     """Load a stam checkpoint safely (``weights_only=True``)."""
     p = Path(path)
     if not p.is_file():
-        raise GelsimError(f"checkpoint {p} not found; train first or check the path")
+        raise StamError(f"checkpoint {p} not found; train first or check the path")
     try:
         return torch.load(p, map_location="cpu", weights_only=True)
     except Exception as e:  # a truncated or foreign file: one line, not a traceback
-        raise GelsimError(f"cannot load checkpoint {p} ({type(e).__name__}); retrain or check the file") from None
+        raise StamError(f"cannot load checkpoint {p} ({type(e).__name__}); retrain or check the file") from None
 
 
 def save_atomic(obj, path: Path) -> None:
@@ -189,7 +74,7 @@ def load_backbone(model_backbone: torch.nn.Module, path: str) -> None:
     try:
         model_backbone.load_state_dict(state)
     except RuntimeError:
-        raise GelsimError(f"backbone weights in {path} do not fit this model (different width?); "
+        raise StamError(f"backbone weights in {path} do not fit this model (different width?); "
                           "pretrain with the same width") from None
 
 
@@ -276,7 +161,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
     """Train one run into ``cfg.out``. ``features`` (seq id -> T x C x h x w) skips the backbone
     pass when the backbone is frozen. Returns a summary dict (best validation accuracy, epoch, paths)."""
     if not cfg.data or not cfg.out:
-        raise GelsimError("both data and out are required; pass --data DIR --out DIR")
+        raise StamError("both data and out are required; pass --data DIR --out DIR")
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     if cfg.threads:
@@ -291,15 +176,18 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
     ck = None
     if resume:
         if not last_path.is_file():
-            raise GelsimError(f"nothing to resume in {out} (no last.pt); run without --resume")
+            raise StamError(f"nothing to resume in {out} (no last.pt); run without --resume")
         ck = load_checkpoint(last_path)
         saved = dict(ck["config"])
         mine = dataclasses.asdict(cfg)
         diff = [k for k in mine if k not in ("epochs", "progress", "threads", "workers", "device")
                 and saved.get(k) != mine[k]]
         if diff:
-            raise GelsimError(f"--resume with a different config ({', '.join(diff)}); "
-                              "use the saved config or a new --out")
+            raise StamError(f"--resume with a different config ({', '.join(diff)}); "
+                            "use the saved config or a new --out")
+        # Before the frozen backbone's features are computed below: they must come from the
+        # checkpoint's backbone, not from this freshly initialised one.
+        model.load_state_dict(ck["model"])
     else:
         if cfg.pretrained:
             load_backbone(model.backbone, cfg.pretrained)
@@ -320,13 +208,18 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
     opt = make_optimizer(cfg, model.parameters())
     sched = make_scheduler(cfg, opt)
     if ck is not None:
-        model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         sched.load_state_dict(ck["scheduler"])
         torch.set_rng_state(ck["rng"])
         start_epoch, best_acc, best_epoch = ck["epoch"] + 1, ck["best_acc"], ck["best_epoch"]
-        if hasattr(sched, "T_max"):  # more epochs on resume: stretch the cosine to the new end
+        if hasattr(sched, "T_max") and sched.T_max != cfg.epochs:
+            # More (or fewer) epochs on resume: the cosine over the new length, from where the run is.
+            # PyTorch's cosine steps recursively from the current rate, which is 0 at the old end, so
+            # the rate is set to the new curve's value here (as a run of cfg.epochs would have it).
             sched.T_max = cfg.epochs
+            for group, base in zip(opt.param_groups, sched.base_lrs):
+                group["lr"] = sched.eta_min + (base - sched.eta_min) * (
+                    1 + math.cos(math.pi * sched.last_epoch / cfg.epochs)) / 2
     config = dataclasses.asdict(cfg)
     (out / "config.json").write_text(json.dumps(config, indent=2))
     logger = CsvLog(out / "log.csv", start_epoch - 1)
@@ -351,8 +244,10 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
                      "rng": torch.get_rng_state(), "num_classes": data.num_classes,
                      "class_names": data.class_names}, last_path)
         if log:
+            left = cfg.epochs - epoch
+            eta = f"; about {left * row['seconds'] / 60:.1f} min for the {left} epochs left" if epoch == start_epoch and left else ""
             log(f"epoch {epoch}: train loss {tl:.3f} acc {ta:.3f}, val loss {vl:.3f} acc {va:.3f} "
-                f"({row['seconds']:.1f} s)")
+                f"({row['seconds']:.1f} s{eta})")
     return {"out": str(out), "best_val_acc": best_acc, "best_epoch": best_epoch, "epochs": cfg.epochs,
             "train_windows": len(train_ds), "val_windows": len(val_ds),
             "undetected_onsets_train": train_ds.undetected, "best": str(best_path), "last": str(last_path)}
@@ -362,8 +257,9 @@ def model_from_checkpoint(path: str | Path) -> tuple[models.SequenceModel, Train
     """Rebuild the model stored in a ``best.pt``/``last.pt``; returns (model in eval mode, config, checkpoint)."""
     ck = load_checkpoint(path)
     if "model" not in ck or "config" not in ck:
-        raise GelsimError(f"{path} is not a stam training checkpoint; pass best.pt or last.pt of a run")
-    cfg = TrainConfig(**{k: v for k, v in ck["config"].items() if k in FIELDS})
+        raise StamError(f"{path} is not a stam training checkpoint; pass best.pt or last.pt of a run")
+    known = {f.name for f in dataclasses.fields(TrainConfig)}
+    cfg = resolve_train(TrainConfig(), {k: v for k, v in ck["config"].items() if k in known}, str(path))
     model = models.build(cfg.model, cfg.frames, int(ck["num_classes"]), **cfg.model_options())
     model.load_state_dict(ck["model"])
     return model.eval(), cfg, ck
@@ -390,7 +286,7 @@ def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: 
     dev = resolve_device(device)
     data = data or TactileDataset(data_dir, cache_dir or None, crop=crop)
     if data.crop != crop:
-        raise GelsimError(f"pretrain crop {crop} differs from the dataset reader's crop {data.crop}")
+        raise StamError(f"pretrain crop {crop} differs from the dataset reader's crop {data.crop}")
     seed_everything(seed)
     # Optional BatchNorm while pretraining from scratch, folded away before saving. Measured on
     # `gelsim generate --preset cpu` (100 fabrics, width 0.5, 128 px, crop 0.5, Adam 1e-3, 3 epochs):
@@ -413,7 +309,9 @@ def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: 
         rows.append({"epoch": epoch, "train_loss": tl, "train_acc": ta, "val_loss": vl, "val_acc": va,
                      "seconds": time.perf_counter() - t0})
         if log:
-            log(f"pretrain epoch {epoch}: train acc {ta:.3f}, val frame acc {va:.3f} ({rows[-1]['seconds']:.1f} s)")
+            left, sec = epochs - epoch, rows[-1]["seconds"]
+            eta = f"; about {left * sec / 60:.1f} min for the {left} epochs left" if epoch == 1 and left else ""
+            log(f"pretrain epoch {epoch}: train acc {ta:.3f}, val frame acc {va:.3f} ({sec:.1f} s{eta})")
         if va > best:
             best = va
             plain = fold_batchnorm(net.backbone.cpu().eval())
@@ -421,3 +319,65 @@ def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: 
             state = {k: v.detach().clone() for k, v in plain.state_dict().items()}
     save_atomic({"backbone": state, "settings": settings, "val_acc": best, "log": rows}, path)
     return {"path": str(path), "val_acc": best, "reused": False, "train_frames": len(train_ds)}
+
+
+def cuda_available() -> bool:
+    """Whether torch sees a CUDA device (what ``stam train`` picks its default preset by)."""
+    return torch.cuda.is_available()
+
+
+def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict | None = None,
+              sets: list[str] | None = None, pretrained: str | None = None, resume: bool = False,
+              dry_run: bool = False, log=print, note=print) -> dict:
+    """What ``stam train`` does: resolve the config (preset, then ``overrides``, then ``sets``
+    "key=value"), pretrain the backbone as the preset's ``[pretrain]`` says (into ``OUT/pretrain/``,
+    reused when its settings match) unless ``pretrained`` names a backbone (``"none"``: random
+    weights), then train. With ``preset=None`` the preset is the one ``--resume`` finds in
+    ``OUT/config.json``, else :func:`stam.config.default_preset` (cpu without a CUDA device), and
+    ``note`` says so in one line. ``dry_run``: resolve and check only. Returns a summary dict."""
+    if not data or not out:
+        raise StamError("both data and out are required; pass --data DIR --out DIR")
+    out_dir = Path(out)
+    if resume and not (out_dir / "last.pt").is_file():
+        raise StamError(f"nothing to resume in {out_dir} (no last.pt); run without --resume")
+    extra = parse_sets(sets or [])
+    chosen = None
+    if preset is None and resume and (out_dir / "config.json").is_file():
+        preset = json.loads((out_dir / "config.json").read_text()).get("preset") or None
+    if preset is None:
+        device = str(extra.get("device") or (overrides or {}).get("device") or "auto")
+        preset = chosen = default_preset(device, cuda_available())
+    p = load_preset(preset)
+    cfg = resolve_train(p.train, {**(overrides or {}), "data": str(data), "out": str(out), "preset": p.name})
+    cfg = resolve_train(cfg, extra, "--set")
+    if pretrained == "none":
+        cfg, plan = dataclasses.replace(cfg, pretrained=""), None
+    elif pretrained:
+        cfg, plan = dataclasses.replace(cfg, pretrained=str(pretrained)), None
+    elif not cfg.pretrained and p.pretrain is not None:
+        plan = p.pretrain
+        cfg = dataclasses.replace(cfg, pretrained=str(out_dir / "pretrain" / "backbone.pt"))
+    else:
+        plan = None
+    if plan is not None and plan.width != cfg.width:
+        raise StamError(f"the backbone would be pretrained at width {plan.width:g} but trained at width "
+                          f"{cfg.width:g}; give [pretrain] and [train] the same width in a preset file, "
+                          "or pass --pretrained PATH|none")
+    if chosen is not None and note:
+        why = "no CUDA device" if chosen != "paper" else "a CUDA device is available"
+        note(f"stam train: no --preset given and {why}: using the {chosen} preset: {p.describe()}; "
+             "see `stam train --help`")
+    dataset = TactileDataset(cfg.data, cfg.cache_dir or None, crop=cfg.crop)
+    shortest = min(s.num_frames for s in dataset.sequences)
+    if cfg.frames > shortest:
+        raise StamError(f"n_frames={cfg.frames} is outside 1..{shortest} (the shortest sequence); choose a smaller n")
+    summary = {"preset": p.name, "preset_chosen_by_default": chosen is not None,
+               "pretrain": None if plan is None else dataclasses.asdict(plan), "config": dataclasses.asdict(cfg)}
+    if dry_run:
+        return summary
+    if plan is not None:
+        pt = pretrain(cfg.data, out_dir / "pretrain", data=dataset, crop=cfg.crop, onset_threshold=cfg.onset_threshold,
+                      device=cfg.device, progress=cfg.progress, log=log, **dataclasses.asdict(plan))
+        summary["pretrain_result"] = pt
+    summary.update(train(cfg, resume=resume, data=dataset, log=log))
+    return summary

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import sys
 
 from .. import __version__
@@ -66,19 +67,27 @@ def build_parser() -> argparse.ArgumentParser:
 def dispatch(parser: argparse.ArgumentParser, argv: list[str] | None, *,
              interrupted: str = "rerun the same command to continue") -> int:
     """Parse ``argv`` and run the chosen command's handler with the CLI's error contract:
-    a GelsimError is one line on stderr and exit status 2; Ctrl-C exits 130 with ``interrupted``."""
+    a GelsimError is one line on stderr and exit status 2; Ctrl-C exits 130 with ``interrupted``; a
+    closed stdout pipe (``| head``) ends quietly with status 141."""
     args = parser.parse_args(argv)
     if not getattr(args, "handler", None):
         parser.print_help()
         return 2
     try:
-        return int(args.handler(args) or 0)
+        code = int(args.handler(args) or 0)
+        sys.stdout.flush()  # inside the try: a reader gone away (`| head`) shows up here, not at exit
+        return code
     except GelsimError as e:
         print(f"{parser.prog}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{parser.prog}: interrupted; {interrupted}", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader closed the pipe: stop quietly, as cat does. Point stdout at /dev/null so that
+        # Python's own flush at exit does not raise again; 141 = 128 + SIGPIPE, a shell's status for it.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,4 +1,8 @@
 import json
+import subprocess
+import sys
+
+import pytest
 
 from stam import cli
 from stam.experiment import PAPER_TABLES, markdown_table, run_experiment
@@ -58,3 +62,26 @@ def test_experiment_bad_input(synth, tmp_path, capsys):
     assert cli.main(["experiment", "--data", str(synth), "--out", str(tmp_path / "o"), "--frames", "12"]) == 2
     errs = capsys.readouterr().err.strip().splitlines()
     assert len(errs) == 3 and all(e.startswith("stam: error:") for e in errs)
+
+
+def test_stam_error_is_a_gelsim_error_and_one_line(tmp_path, capsys):
+    from gelsim.errors import GelsimError
+    from stam.data import load_manifest
+    from stam.errors import StamError
+
+    assert issubclass(StamError, GelsimError)
+    with pytest.raises(StamError, match="does not exist"):
+        load_manifest(tmp_path / "missing")
+    assert cli.main(["onsets", "--data", str(tmp_path / "missing")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stam: error:") and err.count("\n") == 1
+
+
+def test_closed_pipe_ends_quietly():
+    # `stam ... | head`: the reader is gone before the command writes. Closing our end at once
+    # makes the first write fail (the interpreter takes a second or more to start).
+    argv = ["-m", "stam", "info", "--model", "stam", "--readings", "--json"]
+    proc = subprocess.Popen([sys.executable, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()
+    _, err = proc.communicate(timeout=120)
+    assert err.decode() == "" and proc.returncode == 141

@@ -1,19 +1,21 @@
 import csv
 import json
+import math
 
 import pytest
 import torch
 
 from stam import cli
 from stam.evaluate import evaluate
-from stam.train import load_checkpoint, load_config, train
+from stam.config import TrainConfig, resolve_train
+from stam.train import load_checkpoint, train
 
 
 def _cfg(synth, out, **kw):
     base = {"data": str(synth), "out": str(out), "model": "stam", "frames": 3, "image_size": 96, "width": 0.25,
             "epochs": 2, "batch_size": 8, "optimizer": "adam", "lr": 0.001, "lr_schedule": "constant",
             "progress": False}
-    return load_config(None, base | kw)
+    return resolve_train(TrainConfig(), base | kw)
 
 
 def test_tiny_end_to_end_training_beats_chance(synth, tmp_path):
@@ -45,16 +47,46 @@ def test_resume_continues_from_checkpoint(synth, tmp_path):
         train(_cfg(synth, tmp_path / "b", epochs=5, lr=0.1, **kw), resume=True, log=None)
 
 
+def test_resume_uses_the_checkpoints_frozen_backbone(synth, tmp_path):
+    # After a resume the frozen backbone's features must come from the checkpoint's (pretrained)
+    # backbone, not from the freshly built model's random one.
+    from stam import models
+
+    torch.manual_seed(123)
+    backbone = models.build("cnn", 3, 4, width=0.25, image_size=96).backbone
+    torch.save({"backbone": backbone.state_dict()}, tmp_path / "backbone.pt")
+    kw = {"model": "cnn", "freeze_backbone": True, "seed": 3, "pretrained": str(tmp_path / "backbone.pt")}
+    straight = train(_cfg(synth, tmp_path / "a", epochs=4, **kw), log=None)
+    train(_cfg(synth, tmp_path / "b", epochs=2, **kw), log=None)
+    resumed = train(_cfg(synth, tmp_path / "b", epochs=4, **kw), resume=True, log=None)
+    a, b = load_checkpoint(straight["last"]), load_checkpoint(resumed["last"])
+    for k in a["model"]:
+        torch.testing.assert_close(a["model"][k], b["model"][k], rtol=1e-5, atol=1e-6)
+
+
+def test_resume_with_more_epochs_follows_the_longer_cosine(synth, tmp_path):
+    kw = {"model": "cnn", "freeze_backbone": True, "lr_schedule": "cosine", "lr": 0.002}
+    train(_cfg(synth, tmp_path / "b", epochs=2, **kw), log=None)
+    train(_cfg(synth, tmp_path / "b", epochs=4, **kw), resume=True, log=None)
+    with open(tmp_path / "b" / "log.csv") as f:
+        lr = [float(r["lr"]) for r in csv.DictReader(f)]
+    # epochs 1-2 on the 2-epoch cosine, 3-4 where a 4-epoch cosine is: 0.002 x (1 + cos(pi t / 4)) / 2
+    assert lr == pytest.approx([0.002, 0.001, 0.001, 0.002 * (1 + math.cos(3 * math.pi / 4)) / 2], rel=1e-6)
+
+
 def test_config_errors_exit_2(synth, tmp_path, capsys):
     bad = tmp_path / "bad.toml"
-    bad.write_text('model = "stam"\nlearning_rate = 0.1\n')
+    bad.write_text('[train]\nmodel = "stam"\nlearning_rate = 0.1\n')
     assert cli.main(["train", "--config", str(bad), "--data", str(synth), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
-    assert "unknown config key 'learning_rate'" in err and "\n" not in err
+    assert "unknown key 'learning_rate'" in err and "bad.toml" in err and "\n" not in err
     assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "o"), "--set", "epochs=two"]) == 2
     assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "o"), "--frames", "11",
-                     "--set", "image_size=96", "--set", "width=0.25", "--quiet"]) == 2
+                     "--pretrained", "none", "--set", "image_size=96", "--set", "width=0.25", "--quiet"]) == 2
     assert "outside" in capsys.readouterr().err
+    assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "o"), "--preset", "cpu",
+                     "--set", "width=0.25", "--quiet"]) == 2
+    assert "pretrained at width 0.5 but trained at width 0.25" in capsys.readouterr().err
     assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "o2"), "--resume"]) == 2
 
 
