@@ -21,7 +21,8 @@ def register(sub) -> None:
             "seed, so the output is the same for any --workers. Interrupted (Ctrl-C, kill -9), rerun the same\n"
             "command to finish without redoing finished sequences.\n\n"
             "Presets: quick = 10 fabrics x 3 sequences at 320x240, fast (about a minute; `make demo`);\n"
-            "         cpu   = 100 fabrics x 10 sequences at 320x240, balanced (sized for `stam experiment --preset cpu`).\n"
+            "         cpu   = 100 fabrics x 20 sequences at 320x240, balanced, split 7:2:11 (sized for\n"
+            "                 `stam experiment --preset cpu`: 1,100 test sequences resolve a few points).\n"
             "Options given with a preset override it."),
     )
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (new, empty, or a dataset to resume)")
@@ -30,6 +31,8 @@ def register(sub) -> None:
     p.add_argument("--sequences-per-fabric", type=int, metavar="N",
                    help="sequences per fabric; ViTac Cloth has about 50 (5,036 in all) [default: 50]")
     p.add_argument("--actions", metavar="P:S:T", help="press:slip:twist weights, as in ViTac Cloth [default: 7:1:2]")
+    p.add_argument("--split", metavar="TRAIN:VAL:TEST",
+                   help="train:val:test weights, apportioned per fabric by sequence [default: 7:2:1, the paper's]")
     p.add_argument("--frames", metavar="MIN-MAX", help="frames per sequence, pre-contact included [default: 25-36]")
     p.add_argument("--precontact", metavar="MIN-MAX",
                    help="pre-contact frames per sequence (sensor approaching, nothing touching), uniform in the "
@@ -83,6 +86,8 @@ def config_from_args(args: argparse.Namespace):
         values["sequences_per_fabric"] = args.sequences_per_fabric
     if args.actions is not None:
         values["actions"] = parse_ratio(args.actions)
+    if args.split is not None:
+        values["split"] = parse_ratio(args.split, "--split", "train:val:test", "7:2:1")
     if args.frames is not None:
         values["frames"] = parse_range(args.frames, "--frames", lo=2)
     if args.precontact is not None:

@@ -202,3 +202,20 @@ def test_dry_run_writes_nothing(tmp_path, capsys):
     assert plan["sequences"] == 5000 and plan["estimated_bytes"] > 0 and plan["estimated_seconds"] > 0
     assert plan["actions"] == {"press": 3500, "slip": 500, "twist": 1000}
     assert not out.exists()
+
+
+def test_a_dataset_made_before_an_option_existed_resumes(tiny, tmp_path, capsys):
+    """A manifest without the newer `split` option reads as the default split: rerunning the same
+    command resumes instead of refusing the directory; another split is refused, one line, exit 2."""
+    import shutil
+
+    out = tmp_path / "old"
+    shutil.copytree(tiny, out)
+    m = json.loads((out / "manifest.json").read_text())
+    del m["options"]["split"]
+    (out / "manifest.json").write_text(json.dumps(m))
+    capsys.readouterr()
+    assert _gen(out) == 0
+    assert _gen(out, "--split", "1:1:1") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("gelsim: error: --out") and "(split)" in err[-1]

@@ -89,3 +89,15 @@ def test_interleave_blocks_hold_the_exact_ratio():
     seq = interleave(100, (7, 1, 2))
     for b in range(10):
         assert Counter(seq[10 * b: 10 * b + 10]) == {0: 7, 1: 1, 2: 2}
+
+
+def test_split_weights_apportion_per_fabric():
+    specs = plan(GenerateConfig(fabrics=4, sequences_per_fabric=20, split=(7.0, 2.0, 11.0)), 100)
+    for fid in range(1, 5):
+        c = Counter(s.split for s in specs if s.fabric_id == fid)
+        assert c == {"train": 7, "val": 2, "test": 11}
+    # the default is the paper's 7:2:1, and float weights plan as the old integer ones did
+    d = plan(GenerateConfig(fabrics=3, sequences_per_fabric=10), 100)
+    assert Counter(s.split for s in d) == {"train": 21, "val": 6, "test": 3}
+    with pytest.raises(GelsimError, match="--split '7:2' is malformed; give three non-negative train:val:test"):
+        parse_ratio("7:2", "--split", "train:val:test", "7:2:1")
