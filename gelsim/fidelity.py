@@ -23,7 +23,7 @@ class Fidelity:
     marker_model: Literal["gaussian", "elastic"] = param(doc="marker displacement model")
     render_backend: Literal["fast", "pyrender"] = param(doc="renderer")
     supersample: int = param(lo=1, hi=4, doc="render at this many times the resolution, then average down")
-    macro_cells: int = param(64, lo=8, hi=1024, doc="two-scale model: cells across the touched region in its "
+    macro_cells: int = param(lo=8, hi=1024, doc="two-scale model: cells across the touched region in its "
                                                    "macro (contact-scale) elastic solve")
     est_ms_per_frame_vga: float = param(50.0, lo=0.0, hi=1e6,
                                         doc="measured end-to-end ms per 640x480 frame on one core (for --dry-run estimates)")
