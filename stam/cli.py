@@ -120,11 +120,11 @@ def _experiment(args) -> int:
     from .experiment import run_experiment
 
     res = run_experiment(args.data, args.out, args.preset, args.seeds, args.models, args.frames, args.settings,
-                         log=None if args.json else print)
+                         log=None if args.json else print, note=lambda m: print(m, file=sys.stderr))
     if args.json:
         print_json({k: v for k, v in res.items() if k != "cells"} | {"cells": len(res["cells"])})
     else:
-        for k in ("table1", "table2"):
+        for k in ("table1", "table2", "differences_table"):
             if k in res:
                 print(open(res[k]).read())
         print(f"plot: {res['plot']}")
@@ -158,6 +158,32 @@ One line on stderr says which was chosen. The resolved configuration is saved in
 --resume continues with it."""
 
 
+def experiment_help() -> str:
+    from . import stats
+
+    need = ", ".join(f"{d} point{'s' * (d != 1)}: {stats.required_test_size(d / 100):,}" for d in (5, 3, 2, 1))
+    return f"""the Tables I/II sweep: 3 models x n = 2..7 x clean/noisy x seeds, with 95% CIs (resumable)
+
+Writes OUT/table1.md and OUT/table2.md (test accuracy, mean over seeds [95% CI], beside the
+paper's figure), OUT/differences.md (the paper's comparisons STAM - CNN, CNN+SA - CNN and
+noisy - clean as paired differences with 95% CIs, bold where the CI excludes 0; noisy/clean
+ratios; the resolution reached), OUT/tables.png (CIs as error bars) and OUT/results.json.
+
+Intervals: percentile bootstrap over the test sequences ({stats.BOOTSTRAP_RESAMPLES:,} resamples, fixed seed).
+Each sequence's correctness is averaged over the seeds first, so its seed-to-seed flips are
+inside the interval; every statistic uses the same resamples, so differences between models,
+n and settings are paired.
+
+Test size: an observed difference of d points is resolved (its CI excludes 0) when the CI's
+half-width, 1.96 sqrt(v / N) on N test sequences, is below d: N >= (1.96 / d)^2 v; finding a
+true difference of d with 80% power takes about twice that. Here v is the variance over
+sequences of the per-sequence difference in correctness: {stats.PLANNING_DIFFERENCE_VARIANCE} for two models
+whose correctness differs on a quarter of the sequences (less after averaging over seeds).
+Then {need} test sequences.
+`gelsim generate --preset cpu` has 1,100 (11 per fabric, --split 7:2:11).
+With fewer than {stats.MIN_TEST_SEQUENCES} test sequences it warns; differences.md states the half-width reached."""
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .data import DEFAULT_ONSET_THRESHOLD
     from .models import MODEL_NAMES
@@ -167,8 +193,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"stam {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
-    def cmd(name, handler, help_):
-        s = sub.add_parser(name, help=help_, description=help_, formatter_class=HelpFormatter)
+    def cmd(name, handler, help_, description=None):
+        # argparse %-formats the help of the command list (not descriptions): "95%" must be escaped there.
+        s = sub.add_parser(name, help=help_.replace("%", "%%"), description=description or help_,
+                           formatter_class=HelpFormatter)
         s.set_defaults(handler=handler)
         s.add_argument("--json", action="store_true", help="print one JSON document on stdout")
         return s
@@ -230,7 +258,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", help="directory for eval-<split>.json and confusion-<split>.png (default: the run's)")
     s.add_argument("--device", default="auto", help="auto, cpu or cuda")
 
-    s = cmd("experiment", _experiment, "the Tables I/II sweep: 3 models x n = 2..7 x clean/noisy x seeds (resumable)")
+    s = cmd("experiment", _experiment, "the Tables I/II sweep: 3 models x n = 2..7 x clean/noisy x seeds, "
+            "with 95% CIs (resumable)", experiment_help())
     s.add_argument("--data", required=True, help="dataset directory")
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--preset", default="cpu", help="cpu (2 CPU cores), paper (GPU), or a .toml path")

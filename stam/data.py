@@ -26,6 +26,7 @@ import torch
 from torch.utils.data import Dataset
 
 from .errors import StamError
+from .stats import wilson_interval
 
 FORMAT = "gelsim-dataset"
 FORMAT_VERSION = 1
@@ -204,17 +205,6 @@ def detect_onset(scores: np.ndarray, threshold: float = DEFAULT_ONSET_THRESHOLD,
     hit[0] = False
     above = np.flatnonzero(hit)
     return int(above[0]) if above.size else None
-
-
-def wilson_interval(k: int, n: int, z: float = 1.96) -> tuple[float, float] | None:
-    """Wilson score interval of a proportion k/n (z = 1.96: 95%); None for n = 0. Unlike the
-    normal approximation it stays inside [0, 1] when k is 0 or n."""
-    if n <= 0:
-        return None
-    p = k / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return float(max(0.0, centre - half)), float(min(1.0, centre + half))
 
 
 @dataclass

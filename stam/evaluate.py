@@ -72,7 +72,8 @@ def evaluate(checkpoint: str | Path, data_dir: str | None = None, split: str = "
              data: TactileDataset | None = None, features: dict | None = None) -> dict:
     """Evaluate a ``best.pt``/``last.pt`` on a split of the dataset it was trained on (or
     ``data_dir``). Writes ``eval-<split>.json`` and ``confusion-<split>.png`` to ``out``
-    (default: the checkpoint's directory). ``features`` as in :func:`stam.train.train`."""
+    (default: the checkpoint's directory). ``features`` as in :func:`stam.train.train`. Besides
+    :func:`metrics`, the result lists each window's sequence id, label and prediction."""
     model, cfg, ck = model_from_checkpoint(checkpoint)
     dev = resolve_device(device)
     model.to(dev)
@@ -84,7 +85,10 @@ def evaluate(checkpoint: str | Path, data_dir: str | None = None, split: str = "
     labels, preds = predict(model, loader, dev, model.forward_features if use_feats else None)
     res = metrics(labels, preds, data.num_classes)
     res.update({"checkpoint": str(checkpoint), "split": split, "model": cfg.model, "frames": cfg.frames,
-                "start": cfg.start, "epoch": int(ck.get("epoch", 0)), "class_names": data.class_names})
+                "start": cfg.start, "epoch": int(ck.get("epoch", 0)), "class_names": data.class_names,
+                # Per sequence, in the split's order, so that runs on the same split can be paired.
+                "sequences": [seq.id for seq, _ in ds.items], "labels": labels.tolist(),
+                "predictions": preds.tolist()})
     out = Path(out) if out else Path(checkpoint).parent
     out.mkdir(parents=True, exist_ok=True)
     png = plot_confusion(res["confusion"], data.class_names, out / f"confusion-{split}.png",

@@ -1,17 +1,29 @@
 """The sweep behind the paper's Tables I and II: CNN, CNN + SA and STAM, n = 2..7,
-clean (windows from the first contact frame) and noisy (from frame 0), over seeds.
+clean (windows from the first contact frame) and noisy (from frame 0), over seeds; with 95%
+intervals on every accuracy and on the differences the paper claims.
 
 Output directory::
 
     OUT/pretrain/backbone.pt        shared starting weights of all three models
     OUT/features-<key>.pt           frozen-backbone features of every frame (cpu preset)
-    OUT/cells/<setting>/n<n>/<model>/seed<k>/result.json (+ the run's logs and checkpoints)
+    OUT/cells/<setting>/n<n>/<model>/seed<k>/result.json   accuracy, and each test sequence's id,
+                                    prediction and correctness (+ the run's logs and best.pt)
     OUT/onsets.json                 agreement of detected and true contact onsets
-    OUT/table1.md, OUT/table2.md    ours beside the paper's figures, the paper's layout
-    OUT/tables.png                  accuracy against n, both settings
-    OUT/results.json                every cell
+    OUT/table1.md, OUT/table2.md    ours (mean [95% CI]) beside the paper's figures, the paper's layout
+    OUT/differences.md              the paper's comparisons as paired differences with 95% CIs, the
+                                    noisy/clean ratios, and the resolution at this test size
+    OUT/tables.png                  accuracy against n with 95% CIs, both settings
+    OUT/results.json                all of it (cells without their per-sequence lists)
 
-Resumable: a cell whose ``result.json`` exists is not recomputed.
+Intervals (stam.stats): every model, n, setting and seed is tested on the same test sequences.
+Each sequence's correctness is averaged over the seeds, and the test sequences are resampled
+(10,000 times, fixed seed); every statistic is computed on the same resamples,
+so differences between models, n and settings are paired.
+
+Resumable: a cell whose ``result.json`` exists is not retrained. A ``result.json`` written before
+per-sequence results were kept is completed by re-evaluating the cell's ``best.pt`` (it must give
+the recorded accuracy, else the cell was tested on another dataset and the run stops); without
+``best.pt`` the cell is retrained.
 """
 from __future__ import annotations
 
@@ -25,6 +37,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from gelsim.atomic import atomic_write_json, atomic_write_text
+
+from . import stats
 from .backbone import AlexNetFeatures
 from .config import PretrainConfig, load_preset, resolve_train
 from .data import SPLITS, TactileDataset, backbone_features
@@ -34,6 +49,7 @@ from .train import load_backbone, pretrain, save_atomic, train
 
 SETTINGS = {"clean": "contact", "noisy": "zero"}
 MODEL_LABELS = {"cnn": "CNNs", "cnn_sa": "CNNs+Spatial Attention", "stam": "STAM"}
+SHORT_LABELS = {"cnn": "CNN", "cnn_sa": "CNN+SA", "stam": "STAM"}  # in the differences' row names
 # Tables I and II of Cao et al. (IROS 2020), accuracy in %, n = 2..7.
 PAPER_TABLES = {
     "clean": {"cnn": [67.23, 72.04, 75.26, 78.06, 79.56, 81.29],
@@ -62,10 +78,62 @@ def _feature_cache(out: Path, backbone_path: Path, data: TactileDataset, width: 
     return feats
 
 
+PER_SEQUENCE_KEYS = ("test_ids", "test_predictions", "test_correct")
+
+
+def test_size_warning(n: int) -> str | None:
+    """One line when a test split of ``n`` sequences is too small to resolve the paper's attention
+    gains (1-5 points), else None."""
+    if n >= stats.MIN_TEST_SEQUENCES:
+        return None
+    half = 100 * stats.paired_halfwidth(n)
+    return (f"stam experiment: warning: the test split has {n} sequences (under {stats.MIN_TEST_SEQUENCES}): a "
+            f"difference between two models gets a 95% CI of about ±{half:.1f} points, too wide for the paper's "
+            "1-5 point attention gains; generate more test sequences (gelsim generate --preset cpu has 1,100)")
+
+
+def _per_sequence(ev: dict) -> dict:
+    return {"test_ids": ev["sequences"], "test_predictions": ev["predictions"],
+            "test_correct": [int(p == y) for p, y in zip(ev["predictions"], ev["labels"])]}
+
+
+def _finished_cell(cell_dir: Path, out: Path, test_ids: list[str], data: TactileDataset, feats: dict | None,
+                   log) -> dict | None:
+    """The cell's result, or None when it has to be (re)trained. A result.json without per-sequence
+    results (written before they were kept) gets them from its best.pt, re-evaluated on the test split."""
+    path = cell_dir / "result.json"
+    if not path.is_file():
+        return None
+    cell = json.loads(path.read_text())
+    rerun = f"use a new --out (or delete {out / 'cells'}) to rerun the sweep on this dataset"
+    if "test_correct" not in cell:
+        best = cell_dir / "best.pt"
+        if not best.is_file():
+            if log:
+                log(f"{path} has no per-sequence results and no best.pt to recompute them: retraining the cell")
+            return None
+        ev = evaluate(best, split="test", data=data, features=feats)
+        if (ev["count"] != cell["test_count"]
+                or round(ev["accuracy"] * ev["count"]) != round(cell["test_acc"] * cell["test_count"])):
+            raise StamError(f"{path} recorded test accuracy {cell['test_acc']:.4f} on {cell['test_count']} sequences, "
+                            f"its best.pt now gives {ev['accuracy']:.4f} on {ev['count']}: it was tested on another "
+                            f"dataset; {rerun}")
+        cell.update(_per_sequence(ev))
+        atomic_write_json(path, cell)
+        if log:
+            log(f"{path}: per-sequence results recomputed from best.pt (same accuracy)")
+    if sorted(cell["test_ids"]) != test_ids:
+        raise StamError(f"{path} was tested on other sequences than this dataset's test split; {rerun}")
+    return cell
+
+
 def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: int | None = None,
                    models: list[str] | None = None, frames: list[int] | None = None,
-                   settings: list[str] | None = None, overrides: dict | None = None, log=print) -> dict:
-    """Run (or resume) the sweep; returns {"cells": [...], "tables": {...}, paths}."""
+                   settings: list[str] | None = None, overrides: dict | None = None, log=print,
+                   note=None) -> dict:
+    """Run (or resume) the sweep; returns what results.json holds: cells (without per-sequence lists),
+    tables, differences, ratios, resolution, seed check, paths. ``log``: progress lines; ``note``:
+    warnings (one line each; the CLI prints them on stderr)."""
     cfg = load_preset(preset)
     sweep = cfg.sweep
     models = list(models or sweep.models)
@@ -83,17 +151,22 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
     data = TactileDataset(data_dir, crop=crop)
     for split in SPLITS:
         if not data.split(split):
-            raise StamError(f"dataset {data_dir} has no {split!r} sequences; generate at least 10 sequences "
-                              "per fabric for the 7:2:1 split")
+            raise StamError(f"dataset {data_dir} has no {split!r} sequences; generate more sequences per fabric "
+                            "(or another gelsim generate --split)")
     shortest = min(s.num_frames for s in data.sequences)
     if max(frames) > shortest or min(frames) < 1:
         raise StamError(f"frames {frames} outside 1..{shortest} (the shortest sequence); choose smaller n")
+    test = sorted(data.split("test"), key=lambda s: s.id)
+    test_ids = [s.id for s in test]
+    warning = test_size_warning(len(test))
+    if warning and note:
+        note(warning)
 
     t0 = time.perf_counter()
     pre = cfg.pretrain or PretrainConfig()
     size = cfg.train.image_size
     onsets = data.onset_agreement(size, cfg.train.onset_threshold)
-    (out / "onsets.json").write_text(json.dumps(onsets, indent=1))
+    atomic_write_json(out / "onsets.json", onsets)
     if log:
         log(f"onset detection: exact {onsets['exact']}/{onsets['sequences']}, within 1 frame "
             f"{onsets['within_1']}, not detected {onsets['not_detected']}")
@@ -112,47 +185,174 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
     todo = [(seed, setting, n, m) for seed in range(seeds) for setting in settings for n in frames for m in models]
     for i, (seed, setting, n, m) in enumerate(todo, 1):
         cell_dir = out / "cells" / setting / f"n{n}" / m / f"seed{seed}"
-        res_path = cell_dir / "result.json"
-        if res_path.is_file():
-            cells.append(json.loads(res_path.read_text()))
-            continue
-        c0 = time.perf_counter()
-        run_cfg = resolve_train(base, {"out": str(cell_dir), "model": m, "frames": n,
-                                       "start": SETTINGS[setting], "seed": seed}, "the sweep")
-        summary = train(run_cfg, features=feats, data=data, log=None)
-        ev = evaluate(summary["best"], split="test", data=data, features=feats)
-        cell = {"setting": setting, "frames": n, "model": m, "seed": seed, "test_acc": ev["accuracy"],
-                "val_acc": summary["best_val_acc"], "best_epoch": summary["best_epoch"],
-                "test_count": ev["count"], "seconds": round(time.perf_counter() - c0, 2)}
-        res_path.write_text(json.dumps(cell, indent=1))
-        # Checkpoints of finished cells are not needed for the tables; keep best.pt only.
-        (cell_dir / "last.pt").unlink(missing_ok=True)
+        cell = _finished_cell(cell_dir, out, test_ids, data, feats, log)
+        if cell is None:
+            c0 = time.perf_counter()
+            run_cfg = resolve_train(base, {"out": str(cell_dir), "model": m, "frames": n,
+                                           "start": SETTINGS[setting], "seed": seed}, "the sweep")
+            summary = train(run_cfg, features=feats, data=data, log=None)
+            ev = evaluate(summary["best"], split="test", data=data, features=feats)
+            cell = {"setting": setting, "frames": n, "model": m, "seed": seed, "test_acc": ev["accuracy"],
+                    "val_acc": summary["best_val_acc"], "best_epoch": summary["best_epoch"],
+                    "test_count": ev["count"], "seconds": round(time.perf_counter() - c0, 2), **_per_sequence(ev)}
+            atomic_write_json(cell_dir / "result.json", cell)
+            # Checkpoints of finished cells are not needed for the tables; keep best.pt only.
+            (cell_dir / "last.pt").unlink(missing_ok=True)
+            if log:
+                log(f"[{i}/{len(todo)}] {setting} n={n} {m} seed {seed}: test {ev['accuracy']:.3f} "
+                    f"(val {summary['best_val_acc']:.3f}, {cell['seconds']:.0f} s)")
         cells.append(cell)
-        if log:
-            log(f"[{i}/{len(todo)}] {setting} n={n} {m} seed {seed}: test {ev['accuracy']:.3f} "
-                f"(val {summary['best_val_acc']:.3f}, {cell['seconds']:.0f} s)")
-    tables = summarise(cells, models, frames, settings)
-    paths = write_tables(out, tables, models, frames, settings, seeds, onsets, preset)
-    result = {"cells": cells, "tables": tables, "onsets": onsets, "pretrain": pt,
+    analysis = analyse(cells, models, frames, settings, test_ids)
+    paths = write_tables(out, analysis, models, frames, settings, seeds, onsets, preset)
+    result = {"cells": [{k: v for k, v in c.items() if k not in PER_SEQUENCE_KEYS} for c in cells],
+              **analysis, "test_size_warning": warning, "onsets": onsets, "pretrain": pt,
               "seconds": round(time.perf_counter() - t0, 1), **paths}
-    tmp = out / f".results.json.partial-{os.getpid()}"
-    tmp.write_text(json.dumps(result, indent=1))
-    os.replace(tmp, out / "results.json")
+    atomic_write_json(out / "results.json", result)
     return result
 
 
-def summarise(cells: list[dict], models, frames, settings) -> dict:
-    """{setting: {model: {n: {"mean", "std", "seeds", "values"}}}}, accuracies in %."""
-    tables: dict = {}
+def _correct(cells: list[dict], test_ids: list[str]) -> np.ndarray:
+    """``0/1 (S, N)``: each seed's correctness on the test sequences, in ``test_ids`` order."""
+    rows = []
+    for c in sorted(cells, key=lambda c: c["seed"]):
+        by_id = dict(zip(c["test_ids"], c["test_correct"]))
+        rows.append([by_id[i] for i in test_ids])
+    return np.array(rows, float)
+
+
+def difference_rows(models, settings) -> list[tuple[str, str, list[tuple[int, str, str]]]]:
+    """The paper's comparisons as (label, kind, terms): the per-sequence difference at n is the sum
+    of weight x (seed-averaged correctness of model in setting at n) over terms (weight, setting, model)."""
+    rows = []
+    attention = [m for m in ("stam", "cnn_sa") if m in models and "cnn" in models]
     for s in settings:
+        for m in attention:
+            rows.append((f"{SHORT_LABELS[m]} − CNN, {s}", "model", [(1, s, m), (-1, s, "cnn")]))
+    if "clean" in settings and "noisy" in settings:
         for m in models:
-            for n in frames:
-                vals = [100 * c["test_acc"] for c in cells if c["setting"] == s and c["model"] == m and c["frames"] == n]
-                if vals:
-                    tables.setdefault(s, {}).setdefault(m, {})[n] = {
-                        "mean": float(np.mean(vals)), "std": float(np.std(vals, ddof=1)) if len(vals) > 1 else 0.0,
-                        "seeds": len(vals), "values": vals}
-    return tables
+            rows.append((f"noisy − clean, {SHORT_LABELS[m]}", "setting", [(1, "noisy", m), (-1, "clean", m)]))
+        # The paper's robustness claim: attention gains more with pre-contact frames in the window.
+        for m in attention:
+            rows.append((f"({SHORT_LABELS[m]} − CNN), noisy − clean", "robustness",
+                         [(1, "noisy", m), (-1, "noisy", "cnn"), (-1, "clean", m), (1, "clean", "cnn")]))
+    return rows
+
+
+def _paper_mean(values: list[float | None]) -> float | None:
+    return None if not values or any(v is None for v in values) else float(np.mean(values))
+
+
+def _paper_sum(terms: list[tuple[int, str, str]], n: int) -> float | None:
+    vals = [_paper(s, m, n) for _, s, m in terms]
+    return None if None in vals else sum(w * v for (w, _, _), v in zip(terms, vals))
+
+
+def _interval(mean: float, lo: float, hi: float, scale: float = 100.0) -> dict:
+    return {"mean": float(scale * mean), "ci95": [float(scale * lo), float(scale * hi)]}
+
+
+def analyse(cells: list[dict], models, frames, settings, test_ids: list[str]) -> dict:
+    """Accuracies with 95% CIs, the paper's paired differences with 95% CIs, noisy/clean ratios, the
+    resolution at this test size and the seed check. Percent and percentage points.
+
+    ``cells``: results with per-sequence correctness; ``test_ids``: the test split, sorted."""
+    grouped: dict = {}
+    for c in cells:
+        grouped.setdefault((c["setting"], c["frames"], c["model"]), []).append(c)
+    correct = {key: _correct(cs, test_ids) for key, cs in grouped.items()}
+    seed_mean = {key: m.mean(0) for key, m in correct.items()}
+
+    # Every statistic below is a mean over the test sequences of one per-sequence column; all are
+    # resampled together.
+    names, columns = [], []
+
+    def column(name, vector):
+        names.append(name)
+        columns.append(vector)
+
+    cell_keys = [(s, n, m) for s in settings for m in models for n in frames if (s, n, m) in seed_mean]
+    for key in cell_keys:
+        column(key, seed_mean[key])
+    rows = difference_rows(models, settings)
+    for label, _, terms in rows:
+        per_n = {}
+        for n in frames:
+            if all((s, n, m) in seed_mean for _, s, m in terms):
+                per_n[n] = sum(w * seed_mean[(s, n, m)] for w, s, m in terms)
+                column((label, n), per_n[n])
+        if len(per_n) == len(frames) > 1:
+            column((label, "mean"), np.mean([per_n[n] for n in frames], axis=0))
+    ci = dict(zip(names, stats.bootstrap_intervals(np.stack(columns, axis=1)))) if columns else {}
+
+    tables: dict = {}
+    for s, n, m in cell_keys:
+        per_seed = 100 * correct[(s, n, m)].mean(1)
+        tables.setdefault(s, {}).setdefault(m, {})[n] = {
+            **_interval(*ci[(s, n, m)]), "std": float(np.std(per_seed, ddof=1)) if per_seed.size > 1 else 0.0,
+            "seeds": int(per_seed.size), "values": per_seed.tolist(), "paper": _paper(s, m, n)}
+
+    differences = []
+    for label, kind, terms in rows:
+        papers = {n: _paper_sum(terms, n) for n in frames}
+        for n in [*frames, "mean"]:
+            if (label, n) not in ci:
+                continue
+            paper = _paper_mean(list(papers.values())) if n == "mean" else papers[n]
+            d = _interval(*ci[(label, n)])
+            differences.append({"difference": label, "kind": kind, "frames": n, **d,
+                                "resolved": d["ci95"][0] > 0 or d["ci95"][1] < 0, "paper": paper})
+
+    ratios = {}
+    if "clean" in settings and "noisy" in settings:
+        for m in models:
+            if all((s, n, m) in seed_mean for s in ("clean", "noisy") for n in frames):
+                avg = {s: np.mean([seed_mean[(s, n, m)] for n in frames], axis=0) for s in ("clean", "noisy")}
+                r = stats.ratio_ci(avg["noisy"], avg["clean"])
+                if r is not None:
+                    paper = {s: _paper_mean([_paper(s, m, n) for n in frames]) for s in ("clean", "noisy")}
+                    ratios[m] = {"ratio": r[0], "ci95": [r[1], r[2]], "resolved": r[1] > 1 or r[2] < 1,
+                                 "paper": None if None in paper.values() else paper["noisy"] / paper["clean"]}
+
+    return {"tables": tables, "differences": differences, "ratios": ratios,
+            "resolution": resolution(differences, tables, len(test_ids), max((len(c) for c in grouped.values()), default=0)),
+            "seed_check": stats.seed_variance_ratio(list(correct.values())),
+            "bootstrap": {"method": "percentile bootstrap over the test sequences; each sequence's correctness "
+                                    "averaged over the seeds; all statistics on the same resamples (paired)",
+                          "resamples": stats.BOOTSTRAP_RESAMPLES, "seed": stats.BOOTSTRAP_SEED,
+                          "level": stats.CI_LEVEL, "test_sequences": len(test_ids)}}
+
+
+def resolution(differences: list[dict], tables: dict, test_sequences: int, seeds: int) -> dict:
+    """The half-widths of the 95% CIs this run achieved (medians), and one sentence saying so."""
+    def half(d):
+        return (d["ci95"][1] - d["ci95"][0]) / 2
+
+    models_n = [half(d) for d in differences if d["kind"] == "model" and d["frames"] != "mean"]
+    models_mean = [half(d) for d in differences if d["kind"] == "model" and d["frames"] == "mean"]
+    accuracy = [half(c) for t in tables.values() for row in t.values() for c in row.values()]
+    res = {"test_sequences": test_sequences, "seeds": seeds,
+           "paired_halfwidth_points": float(np.median(models_n)) if models_n else None,
+           "paired_halfwidth_mean_over_n_points": float(np.median(models_mean)) if models_mean else None,
+           "accuracy_halfwidth_points": float(np.median(accuracy)) if accuracy else None,
+           "planning_paired_halfwidth_points": 100 * stats.paired_halfwidth(test_sequences),
+           "resolved": sum(d["resolved"] for d in differences), "differences": len(differences)}
+    if models_n:
+        text = (f"a difference between two models has a 95% CI half-width of {res['paired_halfwidth_points']:.1f} "
+                f"points at one n (median of {len(models_n)})")
+        if models_mean:
+            text += f", {res['paired_halfwidth_mean_over_n_points']:.1f} averaged over n"
+    else:
+        text = (f"a difference between two models would have a 95% CI half-width of about "
+                f"{res['planning_paired_halfwidth_points']:.1f} points (planning figure; no two models were run)")
+    if accuracy:
+        text += f"; one accuracy ±{res['accuracy_halfwidth_points']:.1f}"
+    kinds = {"model": "model − CNN", "setting": "noisy − clean", "robustness": "(model − CNN) noisy − clean"}
+    counts = [f"{sum(d['resolved'] for d in differences if d['kind'] == k)} of "
+              f"{sum(d['kind'] == k for d in differences)} {name}" for k, name in kinds.items()
+              if any(d["kind"] == k for d in differences)]
+    res["statement"] = (f"Resolution: on {test_sequences:,} test sequences and {seeds} seed{'s' * (seeds != 1)}, {text}. "
+                        "Resolved (CI excludes 0): " + (", ".join(counts) if counts else "no differences") + ".")
+    return res
 
 
 def _paper(setting: str, model: str, n: int) -> float | None:
@@ -161,12 +361,18 @@ def _paper(setting: str, model: str, n: int) -> float | None:
     return None
 
 
-def markdown_table(tables: dict, setting: str, models, frames, seeds: int) -> str:
+def _ci_text(d: dict, signed: bool = False) -> str:
+    f = "+.1f" if signed else ".1f"
+    return f"{d['mean']:{f}} [{d['ci95'][0]:{f}}, {d['ci95'][1]:{f}}]"
+
+
+def markdown_table(tables: dict, setting: str, models, frames, seeds: int, test_sequences: int) -> str:
     title = {"clean": "Table I (clean: windows start at the detected first contact frame)",
              "noisy": "Table II (noisy: windows start at frame 0, pre-contact frames included)"}[setting]
-    spread = f"mean ± sample std over {seeds} seeds" if seeds > 1 else "one seed"
+    over = f"mean over {seeds} seeds" if seeds > 1 else "one seed"
     lines = [f"### {title}", "",
-             f"Test accuracy in %, ours ({spread}) with the paper's figure in brackets.", "",
+             f"Test accuracy in %: ours, {over} [95% CI: bootstrap over the {test_sequences:,} test sequences, "
+             "each sequence's correctness averaged over the seeds], and the paper's figure in parentheses.", "",
              "| Models | " + " | ".join(f"n={n}" for n in frames) + " |",
              "|---" * (len(frames) + 1) + "|"]
     for m in models:
@@ -174,21 +380,65 @@ def markdown_table(tables: dict, setting: str, models, frames, seeds: int) -> st
         for n in frames:
             c = tables.get(setting, {}).get(m, {}).get(n)
             p = _paper(setting, m, n)
-            ours = "–" if c is None else (f"{c['mean']:.1f} ± {c['std']:.1f}" if c["seeds"] > 1 else f"{c['mean']:.1f}")
-            row.append(ours + (f" ({p:.2f})" if p is not None else ""))
+            row.append(("–" if c is None else _ci_text(c)) + (f" ({p:.2f})" if p is not None else ""))
         lines.append(f"| {MODEL_LABELS.get(m, m)} | " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
 
-def write_tables(out: Path, tables: dict, models, frames, settings, seeds: int, onsets: dict, preset: str) -> dict:
+def markdown_differences(analysis: dict, frames) -> str:
+    """The paired differences (rows) by n and averaged over n, the noisy/clean ratios, the
+    resolution and the seed check, as markdown."""
+    n_tests = analysis["bootstrap"]["test_sequences"]
+    lines = ["### Paired differences (percentage points)", "",
+             f"Ours: mean [95% CI, paired bootstrap over the {n_tests:,} test sequences: the same resamples for every "
+             "model, n and setting, each sequence's correctness averaged over the seeds], and the paper's figure "
+             "in parentheses. **Bold**: resolved (the CI excludes 0).", "",
+             "| Difference | " + " | ".join(f"n={n}" for n in frames) + " | mean over n |",
+             "|---" * (len(frames) + 2) + "|"]
+    by_row: dict = {}
+    for d in analysis["differences"]:
+        by_row.setdefault(d["difference"], {})[d["frames"]] = d
+    for label, row in by_row.items():
+        cells = []
+        for n in [*frames, "mean"]:
+            d = row.get(n)
+            if d is None:
+                cells.append("–")
+                continue
+            text = _ci_text(d, signed=True)
+            text = f"**{text}**" if d["resolved"] else text
+            cells.append(text + (f" ({d['paper']:+.2f})" if d["paper"] is not None else ""))
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    if analysis["ratios"]:
+        parts = []
+        for m, r in analysis["ratios"].items():
+            text = f"{r['ratio']:.2f} [{r['ci95'][0]:.2f}, {r['ci95'][1]:.2f}]"
+            parts.append(f"{SHORT_LABELS.get(m, m)} " + (f"**{text}**" if r["resolved"] else text)
+                         + (f" ({r['paper']:.2f})" if r["paper"] is not None else ""))
+        lines += ["", "Noisy/clean accuracy ratio (accuracies averaged over n; bold: the CI excludes 1): "
+                  + ", ".join(parts) + "."]
+    lines += ["", analysis["resolution"]["statement"]]
+    sc = analysis["seed_check"]
+    if sc["ratio"] is not None:
+        lines += ["", f"Seed check: the variance of a cell's accuracy across seeds is {sc['ratio']:.2f} times what "
+                  f"independent per-sequence flips predict (pooled over {sc['cells']} cells). Near 1, the intervals "
+                  "cover seed-to-seed variation; well above 1, seeds shift all sequences together and the intervals "
+                  "are too narrow by about its square root."]
+    return "\n".join(lines) + "\n"
+
+
+def write_tables(out: Path, analysis: dict, models, frames, settings, seeds: int, onsets: dict, preset: str) -> dict:
     paths = {}
+    tables, n_tests = analysis["tables"], analysis["bootstrap"]["test_sequences"]
     for s, name in (("clean", "table1.md"), ("noisy", "table2.md")):
         if s in settings:
-            text = markdown_table(tables, s, models, frames, seeds)
+            text = markdown_table(tables, s, models, frames, seeds, n_tests)
             text += (f"\nPreset `{preset}`. Onset detection agreed exactly with the simulator's contact onset on "
                      f"{onsets['exact']}/{onsets['sequences']} sequences ({onsets['within_1']} within one frame).\n")
-            (out / name).write_text(text)
+            atomic_write_text(out / name, text)
             paths[name.replace(".md", "")] = str(out / name)
+    atomic_write_text(out / "differences.md", markdown_differences(analysis, frames))
+    paths["differences_table"] = str(out / "differences.md")
     paths["plot"] = str(plot_tables(out / "tables.png", tables, models, frames, settings))
     return paths
 
@@ -202,17 +452,22 @@ def plot_tables(path: Path, tables: dict, models, frames, settings) -> Path:
     fig, axes = plt.subplots(1, len(settings), figsize=(5.5 * len(settings), 4), squeeze=False)
     colours = {"cnn": "tab:blue", "cnn_sa": "tab:orange", "stam": "tab:green"}
     for ax, s in zip(axes[0], settings):
-        for m in models:
+        for k, m in enumerate(models):
             cells = tables.get(s, {}).get(m, {})
             ns = [n for n in frames if n in cells]
             if ns:
                 mean = np.array([cells[n]["mean"] for n in ns])
-                std = np.array([cells[n]["std"] for n in ns])
-                ax.errorbar(ns, mean, yerr=std, marker="o", capsize=3, color=colours.get(m), label=f"{MODEL_LABELS[m]} (ours)")
+                lo = np.array([cells[n]["ci95"][0] for n in ns])
+                hi = np.array([cells[n]["ci95"][1] for n in ns])
+                # Nudged sideways so that the three models' bars do not hide each other.
+                x = np.array(ns) + 0.08 * (k - (len(models) - 1) / 2)
+                ax.errorbar(x, mean, yerr=[mean - lo, hi - mean], marker="o", capsize=3, color=colours.get(m),
+                            label=f"{MODEL_LABELS[m]} (ours, 95% CI)")
             pn = [n for n in frames if _paper(s, m, n) is not None]
             ax.plot(pn, [_paper(s, m, n) for n in pn], ls="--", marker="x", color=colours.get(m), alpha=0.6,
                     label=f"{MODEL_LABELS[m]} (paper)")
         ax.set_title({"clean": "clean (Table I)", "noisy": "noisy (Table II)"}[s])
+        ax.set_xticks(frames)
         ax.set_xlabel("n (frames per window)")
         ax.set_ylabel("test accuracy (%)")
         ax.grid(alpha=0.3)

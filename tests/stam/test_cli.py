@@ -2,10 +2,13 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from stam import cli
-from stam.experiment import PAPER_TABLES, markdown_table, run_experiment
+from stam.data import TactileDataset
+from stam.errors import StamError
+from stam.experiment import PAPER_TABLES, PER_SEQUENCE_KEYS, markdown_table, run_experiment
 
 
 def test_info_json(capsys):
@@ -21,28 +24,74 @@ def test_experiment_tables_and_resume(tiny_experiment):
     out, res = tiny_experiment["out"], tiny_experiment["result"]
     assert len(res["cells"]) == 12  # 3 models x n in {2, 3} x clean/noisy x 1 seed
     t1 = (out / "table1.md").read_text()
-    assert "| STAM |" in t1 and "(76.50)" in t1 and "(67.23)" in t1
+    assert "| STAM |" in t1 and "(76.50)" in t1 and "(67.23)" in t1 and "95% CI" in t1
     assert "(72.00)" in (out / "table2.md").read_text()
     assert (out / "tables.png").stat().st_size > 1000
+    assert res["resolution"]["test_sequences"] == 8 and "Resolution: on 8 test sequences" in (
+        out / "differences.md").read_text()
+    assert res["test_size_warning"].startswith("stam experiment: warning: the test split has 8 sequences")
+    test_ids = sorted(s.id for s in TactileDataset(tiny_experiment["data"]).split("test"))
     for c in res["cells"]:
         assert 0.0 <= c["test_acc"] <= 1.0 and c["test_count"] == 8
-    # Resumable: a second run recomputes nothing (every cell is read back from result.json).
-    marker = out / "cells" / "clean" / "n2" / "cnn" / "seed0" / "result.json"
-    cell = json.loads(marker.read_text())
-    cell["test_acc"] = 0.123  # a recomputation would overwrite this
-    marker.write_text(json.dumps(cell))
-    again = run_experiment(str(tiny_experiment["data"]), out, str(tiny_experiment["preset"]), log=None)
-    assert any(c["test_acc"] == 0.123 for c in again["cells"])
-    assert "12.3" in (out / "table1.md").read_text()
+        assert "test_correct" not in c  # results.json leaves the per-sequence lists in the cells' files
+        full = json.loads((out / "cells" / c["setting"] / f"n{c['frames']}" / c["model"] / "seed0"
+                           / "result.json").read_text())
+        assert sorted(full["test_ids"]) == test_ids and len(full["test_predictions"]) == 8
+        assert np.mean(full["test_correct"]) == pytest.approx(c["test_acc"])
+        assert res["tables"][c["setting"]][c["model"]][c["frames"]]["mean"] == pytest.approx(100 * c["test_acc"])
+
+    def again(**kw):
+        return run_experiment(str(tiny_experiment["data"]), out, str(tiny_experiment["preset"]), log=None, **kw)
+
+    def cell_path(m):
+        return out / "cells" / "clean" / "n2" / m / "seed0" / "result.json"
+
+    # Resumable: a second run retrains nothing; every cell is read back from result.json.
+    cell = json.loads(cell_path("cnn").read_text())
+    cell["test_correct"] = [1 - v for v in cell["test_correct"]]  # a retrained cell would overwrite this
+    cell_path("cnn").write_text(json.dumps(cell))
+    flipped = 100 * np.mean(cell["test_correct"])
+    assert again()["tables"]["clean"]["cnn"][2]["mean"] == pytest.approx(flipped)
+    assert f"| CNNs | {flipped:.1f} [" in (out / "table1.md").read_text()
+
+    # A result.json from before per-sequence results were kept: completed from its best.pt.
+    old = json.loads(cell_path("stam").read_text())
+    stripped = {k: v for k, v in old.items() if k not in PER_SEQUENCE_KEYS}
+    cell_path("stam").write_text(json.dumps(stripped))
+    again()
+    assert json.loads(cell_path("stam").read_text()) == old
+    # ... unless its best.pt disagrees with the recorded accuracy: tested on another dataset.
+    cell_path("stam").write_text(json.dumps(stripped | {"test_acc": old["test_acc"] + 0.25}))
+    with pytest.raises(StamError, match="another dataset"):
+        again()
+    # ... and without best.pt it is retrained.
+    cell_path("stam").write_text(json.dumps(stripped))
+    (cell_path("stam").parent / "best.pt").unlink()
+    again()
+    assert "test_correct" in json.loads(cell_path("stam").read_text())
+    assert (cell_path("stam").parent / "best.pt").is_file()
+    # A cell tested on other sequences is refused.
+    cell = json.loads(cell_path("cnn_sa").read_text())
+    cell_path("cnn_sa").write_text(json.dumps(cell | {"test_ids": ["f009-s0000"] + cell["test_ids"][1:]}))
+    with pytest.raises(StamError, match="other sequences"):
+        again()
+    cell_path("cnn_sa").write_text(json.dumps(cell))
+
+    # A second seed of one cell: its sequences pair with the first seed's.
+    two = again(seeds=2, models=["cnn"], frames=[2], settings=["clean"])
+    row = two["tables"]["clean"]["cnn"][2]
+    assert row["seeds"] == 2 and row["mean"] == pytest.approx(np.mean(row["values"]))
+    assert two["seed_check"]["cells"] == 1 and two["differences"] == []
 
 
 def test_markdown_table_layout():
-    tables = {"clean": {m: {n: {"mean": 50.0, "std": 1.5, "seeds": 3, "values": []} for n in range(2, 8)}
-                        for m in PAPER_TABLES["clean"]}}
-    text = markdown_table(tables, "clean", ["cnn", "cnn_sa", "stam"], list(range(2, 8)), 3)
+    tables = {"clean": {m: {n: {"mean": 50.0, "ci95": [47.25, 52.75], "std": 1.5, "seeds": 3, "values": []}
+                            for n in range(2, 8)} for m in PAPER_TABLES["clean"]}}
+    text = markdown_table(tables, "clean", ["cnn", "cnn_sa", "stam"], list(range(2, 8)), 3, 1100)
     lines = [l for l in text.splitlines() if l.startswith("|")]
     assert lines[0] == "| Models | n=2 | n=3 | n=4 | n=5 | n=6 | n=7 |"
-    assert lines[2].startswith("| CNNs | 50.0 ± 1.5 (67.23) |") and lines[4].endswith("(81.93) |")
+    assert lines[2].startswith("| CNNs | 50.0 [47.2, 52.8] (67.23) |") and lines[4].endswith("(81.93) |")
+    assert "mean over 3 seeds [95% CI: bootstrap over the 1,100 test sequences" in text
 
 
 def test_explain_writes_maps(tiny_experiment, tmp_path, capsys):
@@ -85,3 +134,26 @@ def test_closed_pipe_ends_quietly():
     proc.stdout.close()
     _, err = proc.communicate(timeout=120)
     assert err.decode() == "" and proc.returncode == 141
+
+
+def test_experiment_cli_warns_on_a_small_test_split_and_prints_the_resolution(tiny_experiment, capsys):
+    # Every cell is done: this only reads them back and rewrites the tables.
+    args = ["experiment", "--data", str(tiny_experiment["data"]), "--out", str(tiny_experiment["out"]),
+            "--preset", str(tiny_experiment["preset"])]
+    assert cli.main(args) == 0
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("stam experiment: warning: the test split has 8 sequences (under 500)")
+    assert "### Paired differences" in captured.out and "Resolution: on 8 test sequences and 1 seed" in captured.out
+
+
+def test_help_says_how_big_the_test_split_must_be(capsys):
+    from stam.stats import required_test_size
+
+    for argv in (["--help"], ["experiment", "--help"]):
+        with pytest.raises(SystemExit) as exit_:
+            cli.main(argv)
+        assert exit_.value.code == 0
+    text = capsys.readouterr().out
+    assert "95% CIs" in text  # the command list, where argparse %-formats the help
+    assert f"3 points: {required_test_size(0.03):,}" in text and "With fewer than 500 test sequences it warns" in text

@@ -7,8 +7,7 @@ import pytest
 from gelsim.errors import GelsimError
 from stam import cli
 from stam.data import (DEFAULT_ONSET_THRESHOLD, ONSET_DRIFT_FACTOR, SCORE_PERCENTILE, TactileDataset,
-                       WindowDataset, change_score, contact_scores, detect_onset, load_manifest, thumbnails,
-                       wilson_interval)
+                       WindowDataset, change_score, contact_scores, detect_onset, load_manifest, thumbnails)
 
 
 def _copy_manifest(src, dst, **changes):
@@ -107,16 +106,6 @@ def test_detect_onset_rules():
     assert detect_onset(s, 5.0, noise_dn=1.0) == 4
     with pytest.raises(GelsimError, match="shape"):
         detect_onset(np.zeros(5, np.float32))
-
-
-def test_wilson_interval():
-    lo, hi = wilson_interval(10, 10)
-    assert hi == 1.0 and lo == pytest.approx(10 / (10 + 1.96 ** 2), abs=1e-9)
-    lo, hi = wilson_interval(0, 10)
-    assert lo == 0.0 and hi == pytest.approx(1.96 ** 2 / (10 + 1.96 ** 2), abs=1e-9)
-    lo, hi = wilson_interval(905, 1000)
-    assert lo < 0.905 < hi and hi - lo == pytest.approx(0.036, abs=0.002)
-    assert wilson_interval(0, 0) is None
 
 
 def test_onset_detection_agrees_with_manifest(synth):

@@ -1,0 +1,96 @@
+"""stam.experiment's analysis on made-up cells: accuracies, paired differences and ratios with
+their intervals, and the markdown they are written as (the tiny end-to-end run is in test_cli)."""
+import json
+
+import numpy as np
+import pytest
+
+from stam.experiment import analyse, markdown_differences
+
+FRAMES = [2, 3]
+MODELS = ["cnn", "cnn_sa", "stam"]
+SETTINGS = ["clean", "noisy"]
+
+
+def _cells(seed=0, fabrics=20, per_fabric=10, seeds=3):
+    """CNN right on about 30% (clean) or 20% (noisy) of the sequences, each seed flipping some;
+    CNN+SA exactly as CNN; STAM as CNN and also right on 60 sequences CNN gets wrong in every seed."""
+    rng = np.random.default_rng(seed)
+    ids = [f"f{f:03d}-s{k:04d}" for f in range(fabrics) for k in range(per_fabric)]
+    n = len(ids)
+    easy = rng.random(n)
+    extra = rng.permutation(np.flatnonzero(easy >= 0.45))[:60]
+    cells = []
+    for setting, p in (("clean", 0.3), ("noisy", 0.2)):
+        for frames in FRAMES:
+            for s in range(seeds):
+                cnn = (easy < p + 0.05 * (rng.random(n) - 0.5)).astype(int)
+                stam = cnn.copy()
+                stam[extra] = 1
+                for model, correct in (("cnn", cnn), ("cnn_sa", cnn), ("stam", stam)):
+                    order = rng.permutation(n)  # each cell lists the sequences in its own order
+                    cells.append({"setting": setting, "frames": frames, "model": model, "seed": s,
+                                  "test_ids": [ids[i] for i in order],
+                                  "test_correct": [int(correct[i]) for i in order]})
+    return cells, ids
+
+
+def test_analyse_accuracies_differences_and_ratios():
+    cells, ids = _cells()
+    a = analyse(cells, MODELS, FRAMES, SETTINGS, ids)
+    json.dumps(a)  # plain Python types all through
+    assert a == analyse(cells, MODELS, FRAMES, SETTINGS, ids)  # deterministic
+
+    row = a["tables"]["clean"]["cnn"][2]
+    assert row["seeds"] == 3 and row["mean"] == pytest.approx(np.mean(row["values"]))
+    assert row["ci95"][0] < row["mean"] < row["ci95"][1] and row["paper"] == 67.23
+    # About the binomial width at 200 sequences (a little narrower: seeds averaged).
+    assert 4 < row["ci95"][1] - row["ci95"][0] < 2 * 1.96 * 100 * np.sqrt(0.3 * 0.7 / 200) * 1.1
+
+    by = {(d["difference"], d["frames"]): d for d in a["differences"]}
+    same = by[("CNN+SA − CNN, clean", 2)]
+    assert same["mean"] == 0 and same["ci95"] == [0, 0] and not same["resolved"]
+    assert same["paper"] == pytest.approx(72.12 - 67.23)
+    gain = by[("STAM − CNN, noisy", "mean")]
+    assert gain["mean"] == pytest.approx(30.0) and gain["resolved"] and gain["ci95"][0] > 20
+    assert gain["paper"] == pytest.approx(np.mean([72.00 - 53.20, 72.20 - 58.20]))
+    drop = by[("noisy − clean, CNN", "mean")]
+    assert drop["mean"] < 0 and drop["resolved"]
+    # STAM gains the same 60 sequences in both settings: no robustness difference.
+    assert by[("(STAM − CNN), noisy − clean", "mean")]["mean"] == pytest.approx(0, abs=1e-9)
+    assert {d["kind"] for d in a["differences"]} == {"model", "setting", "robustness"}
+    assert len(a["differences"]) == 9 * 3  # 9 rows x (n = 2, 3, mean)
+
+    r = a["ratios"]["cnn"]
+    clean = np.mean([a["tables"]["clean"]["cnn"][n]["mean"] for n in FRAMES])
+    noisy = np.mean([a["tables"]["noisy"]["cnn"][n]["mean"] for n in FRAMES])
+    assert r["ratio"] == pytest.approx(noisy / clean) and r["ci95"][1] < 1 and r["resolved"]
+    assert r["paper"] == pytest.approx(np.mean([53.20, 58.20]) / np.mean([67.23, 72.04]))
+
+    res = a["resolution"]
+    assert res["test_sequences"] == 200 and res["seeds"] == 3
+    assert res["paired_halfwidth_points"] > 0 and res["accuracy_halfwidth_points"] > 0
+    # Seeds only flip sequences independently here.
+    assert a["seed_check"]["cells"] == 12 and 0.5 < a["seed_check"]["ratio"] < 2
+
+
+def test_markdown_differences():
+    cells, ids = _cells()
+    a = analyse(cells, MODELS, FRAMES, SETTINGS, ids)
+    text = markdown_differences(a, FRAMES)
+    lines = {l.split(" | ")[0]: l for l in text.splitlines() if l.startswith("| ")}
+    assert lines["| Difference"] == "| Difference | n=2 | n=3 | mean over n |"
+    assert lines["| CNN+SA − CNN, clean"].startswith("| CNN+SA − CNN, clean | +0.0 [+0.0, +0.0] (+4.89) |")
+    assert "| **+30.0 [" in lines["| STAM − CNN, clean"]  # resolved: bold
+    assert "Noisy/clean accuracy ratio" in text and "STAM **" in text
+    assert a["resolution"]["statement"] in text and "Seed check:" in text
+    assert "Resolved (CI excludes 0): 6 of 12 model − CNN, 9 of 9 noisy − clean, 0 of 6 (model − CNN) noisy − clean" in text
+
+
+def test_analyse_without_a_baseline_or_both_settings():
+    cells, ids = _cells(seeds=1)
+    only = [c for c in cells if c["model"] == "stam" and c["setting"] == "clean"]
+    a = analyse(only, ["stam"], FRAMES, ["clean"], ids)
+    assert a["differences"] == [] and a["ratios"] == {} and a["seed_check"]["ratio"] is None
+    assert "no two models were run" in a["resolution"]["statement"]
+    assert set(a["tables"]["clean"]["stam"]) == set(FRAMES)
