@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from .errors import GelsimError
-from .realism import write_png as _write_png
+from .atomic import write_png
 from .video import read_video
 
 LABEL_SCALE = 0.4  # OpenCV Hershey font scale for 160-320 px tiles
@@ -54,7 +54,7 @@ def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Pa
         frames = read_video(root / s["video"])
         strip = frame_strip(frames, onset=s.get("contact_onset"))
         p = out_dir / f"{action}.png"
-        _write_png(p, strip)
+        write_png(p, strip)
         written.append(p)
     # Contact sheet: per fabric, the frame of peak force of its first sequence.
     tiles = []
@@ -70,7 +70,7 @@ def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Pa
         tiles.append(_label(_tile(frames[k], tile_px), f"{s['fabric_id']} {names.get(s['fabric_id'], '')}"[:28]))
     if tiles:
         p = out_dir / "contact_sheet.png"
-        _write_png(p, _grid(tiles, min(10, len(tiles))))
+        write_png(p, _grid(tiles, min(10, len(tiles))))
         written.append(p)
     return written
 

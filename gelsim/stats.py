@@ -614,8 +614,8 @@ def write_stats(root: str | Path, out_dir: str | Path | None = None, *, crop: fl
     (:func:`stats_figure`) and, with ``sheet``, dataset_actions.png (:func:`gelsim.previews.action_sheet`,
     which decodes one video per tile). Every file is written atomically. ``manifest``: as in
     :func:`dataset_stats`. Returns (summary, paths written)."""
-    from .dataset import atomic_write_bytes, atomic_write_json, load_manifest
-    from .realism import write_png
+    from .atomic import atomic_write_bytes, atomic_write_json, write_png
+    from .dataset import load_manifest
 
     root = Path(root)
     out = Path(out_dir) if out_dir is not None else root / "previews"

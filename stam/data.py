@@ -25,6 +25,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from gelsim.atomic import atomic_open
+
 from .errors import StamError
 
 FORMAT = "gelsim-dataset"
@@ -135,14 +137,12 @@ def default_cache_dir(data_dir: Path) -> Path:
 
 
 def _save_atomic(path: Path, arr: np.ndarray | None = None, **arrays: np.ndarray) -> None:
-    """Write ``arr`` as .npy, or ``arrays`` as .npz, under a temporary name, then rename."""
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    with open(tmp, "wb") as f:
+    """Write ``arr`` as .npy, or ``arrays`` as (uncompressed) .npz, atomically (gelsim.atomic)."""
+    with atomic_open(path) as f:
         if arrays:
             np.savez(f, **arrays)
         else:
             np.save(f, arr)
-    os.replace(tmp, path)
 
 
 def thumbnails(frames: np.ndarray) -> np.ndarray:
