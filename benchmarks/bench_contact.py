@@ -15,16 +15,13 @@ import os
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from gelsim.contact import Surface, simulate  # noqa: E402
-from gelsim.fidelity import fidelity_levels  # noqa: E402
-from gelsim.motion import ACTIONS, sample_motion  # noqa: E402
-from gelsim.sensor import load_profile  # noqa: E402
+from gelsim.contact import Surface, simulate
+from gelsim.fidelity import fidelity_levels
+from gelsim.motion import ACTIONS, sample_motion
+from gelsim.sensor import load_profile
 
 CELL_MM = 0.2  # the physics cell size the pipeline uses
 

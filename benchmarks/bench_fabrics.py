@@ -26,8 +26,7 @@ import tracemalloc
 
 import cv2
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from gelsim.fabrics import FAMILY_KEYS, heightfield, load_catalog  # noqa: E402
+from gelsim.fabrics import FAMILY_KEYS, heightfield, load_catalog
 
 CASES = {
     "fine": dict(size_mm=40.0, mm_per_px=0.01, rotation_deg=0.0),

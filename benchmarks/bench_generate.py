@@ -21,9 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from gelsim.dataset import GenerateConfig, generate, plan, summarize_timings  # noqa: E402
+from gelsim.dataset import GenerateConfig, generate, plan, summarize_timings
 
 
 def main() -> int:

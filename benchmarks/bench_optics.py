@@ -25,14 +25,13 @@ import tempfile
 import time
 from pathlib import Path
 
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+os.environ.setdefault("OMP_NUM_THREADS", "1")   # before numpy and OpenCV load their thread pools
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from gelsim.runtime import configure_worker  # noqa: E402
 from gelsim.optics import Renderer, available_backends  # noqa: E402
+from gelsim.runtime import configure_worker  # noqa: E402
 from gelsim.sensor import load_profile  # noqa: E402
 
 TARGET_MS = 15.0        # the issue's budget per frame, markers and noise included
@@ -54,23 +53,22 @@ def fabric_depth(profile, fabric_id: int = 12, force_n: float = 3.0, seed: int =
     """Imprint of catalog fabric ``fabric_id`` over the whole pad under ``force_n`` N (fast fidelity):
     float32 mm at the profile's resolution, cached as .npy in ``cache_dir`` (the temporary directory)."""
     h, w = profile.shape
-    mm = profile.image.mm_per_px
     cache = Path(cache_dir or tempfile.gettempdir()) / \
-        f"gelsim-bench-optics-{profile.name}-{w}x{h}-f{fabric_id}-{force_n:g}N-s{seed}.npy"
+        f"gelsim-bench-optics-{profile.name}-{w}x{h}-f{fabric_id}-{force_n:g}N-s{seed}-v2.npy"
     if cache.is_file():
         d = np.load(cache)
         if d.shape == (h, w):
             return d
-    from gelsim.fabrics import heightfield, load_catalog
-    from gelsim.gel import press
-    fab = load_catalog()[fabric_id]
-    relief = heightfield(fab, x0_mm=0.0, y0_mm=0.0, width_px=w, height_px=h, mm_per_px=mm, seed=seed)
-    imp = press(relief, profile, "fast", force_n=force_n,
-                support_stiffness_kpa_per_mm=fab.compressive_modulus_kpa / fab.thickness_mm)
+    from gelsim.atomic import atomic_open
+    from gelsim.fabrics import load_catalog
+    from gelsim.frame import press_object
+    from gelsim.scene import FabricObject
+
+    # the fabric with its own compliance (cloth compression, yarn flattening), centred under the pad
+    imp = press_object(FabricObject(load_catalog()[fabric_id]), profile, "fast", force_n=force_n, seed=seed)
     d = np.ascontiguousarray(imp.depth_mm, np.float32)
-    tmp = cache.with_suffix(f".{os.getpid()}.tmp.npy")
-    np.save(tmp, d)
-    os.replace(tmp, cache)
+    with atomic_open(cache) as f:
+        np.save(f, d)
     return d
 
 

@@ -16,15 +16,12 @@ import argparse
 import dataclasses
 import json
 import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from gelsim.optics import Renderer  # noqa: E402
-from gelsim.realism import ball_depth, load_datapack, resolve_datapack, small_slope_frame, small_slope_summary  # noqa: E402
-from gelsim.sensor import load_profile  # noqa: E402
+from gelsim.optics import Renderer
+from gelsim.realism import ball_depth, load_datapack, resolve_datapack, small_slope_frame, small_slope_summary
+from gelsim.sensor import load_profile
 
 # 0-0.05 and 0.05-0.1: a fine weave's tilts; 0.1-0.2: coarser relief; above: the ball's rim
 BINS = (0.0, 0.05, 0.1, 0.2, 0.4, np.inf)

@@ -24,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-import os
 from pathlib import Path
 
 import cv2
@@ -32,6 +31,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
+from .atomic import atomic_write_npz, atomic_write_text, write_png
 from .errors import GelsimError
 from .optics.lut import coarse_features, normal_xy, shadow_factors
 from .params import dump_toml, to_dict
@@ -493,10 +493,8 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
     stem = out_path.stem
     bg_file = out_path.with_name(f"{stem}-background.png")
     lut_file = out_path.with_name(f"{stem}-shading.npz")
-    _write_png(bg_file, small)
-    tmp = lut_file.with_name(lut_file.name + ".tmp.npz")
-    np.savez_compressed(tmp, **table)
-    os.replace(tmp, lut_file)
+    write_png(bg_file, small)
+    atomic_write_npz(lut_file, **table)
     fitted = dataclasses.replace(
         p_best, lights=lights,                  # the shadows' directions, for pyrender
         shading=dataclasses.replace(p_best.shading, model="lut", table=lut_file.name),
@@ -511,16 +509,8 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
               f"gel thickness_mm and membrane_smoothing_mm, noise, shadows (one per LED: slope, penumbra, colour);\n"
               f"lights: azimuths from the table (for pyrender and the shadows).\n"
               f"Other values come from the base profile." + (f"\n{note}" if note else ""))
-    tmp = out_path.with_name(out_path.name + ".tmp")
-    tmp.write_text(dump_toml(data, header))
-    os.replace(tmp, out_path)
+    atomic_write_text(out_path, dump_toml(data, header))
     return {"profile": str(out_path), "background": str(bg_file), "table": str(lut_file),
             "frames": idx, "best": best, "trials": trials,
             "noise": {"read_sigma_dn": read, "shot_gain": shot}}
 
-
-def _write_png(path: Path, rgb: np.ndarray) -> None:
-    tmp = path.with_name(path.name + ".tmp.png")
-    if not cv2.imwrite(str(tmp), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
-        raise GelsimError(f"cannot write {path}; check that its folder is writable")
-    os.replace(tmp, path)

@@ -1,14 +1,9 @@
 """The dataset: plan, generate (parallel, resumable, deterministic), manifest and verify.
 
-Layout of a dataset directory ``DIR`` (``stam`` reads it; documented in the README)::
-
-    DIR/manifest.json               the index (format "gelsim-dataset"), replaced atomically
-    DIR/videos/fNNN/<id>.mp4        one video per sequence (.mkv for FFV1, a directory for PNG)
-    DIR/labels/fNNN/<id>.npz        per-frame labels of that sequence
-    DIR/records/<id>.json           written last for each finished sequence (checksums, timings)
-    DIR/previews/*.png              a frame strip per action and a contact sheet of all fabrics
-    DIR/previews/dataset_stats.*    statistics per action from the labels (gelsim.stats), and
-                                    dataset_actions.png: press/slip/twist frames across families
+The format itself (layout, manifest fields, label keys, version) is :mod:`gelsim.schema`'s. Besides it
+this module writes ``DIR/previews/*.png`` (a frame strip per action and a contact sheet of all fabrics)
+and ``DIR/previews/dataset_stats.*`` (statistics per action from the labels, gelsim.stats, and
+dataset_actions.png: press/slip/twist frames across families).
 
 Every sequence has its own seed derived from (dataset seed, fabric id, sequence index),
 so the output is identical whatever the number of workers and however often the run is
@@ -18,7 +13,6 @@ the record is written only after its video and labels were renamed into place.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import math
 import os
@@ -31,13 +25,11 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from . import __version__
-from .atomic import atomic_write_bytes, atomic_write_json  # noqa: F401  (re-exported)
+from . import schema
+from .atomic import atomic_write_json, atomic_write_npz
 from .errors import GelsimError
+from .schema import ACTIONS, SPLITS, sha256_of
 
-FORMAT = "gelsim-dataset"
-FORMAT_VERSION = 1
-ACTIONS = ("press", "slip", "twist")
-SPLITS = ("train", "val", "test")
 SPLIT_WEIGHTS = (7.0, 2.0, 1.0)  # the paper's 7:2:1 split, by sequence (the default of --split)
 # Bytes per pixel per frame of each format at 960x720, measured on generated sequences
 # (benchmarks/bench_generate.py); used only for the disk check and --dry-run.
@@ -97,10 +89,10 @@ class SequenceSpec:
     unit: int = -1          # the sensor unit (``GenerateConfig.units``), -1 = the profile itself
 
     def video_stem(self) -> str:
-        return f"videos/f{self.fabric_id:03d}/{self.id}"
+        return schema.video_stem(self.fabric_id, self.id)
 
     def labels_rel(self) -> str:
-        return f"labels/f{self.fabric_id:03d}/{self.id}.npz"
+        return schema.labels_path(self.fabric_id, self.id)
 
 
 # ---------------------------------------------------------------- planning
@@ -213,7 +205,7 @@ def plan(config: GenerateConfig, catalog_size: int) -> list[SequenceSpec]:
                     raise GelsimError(f"--precontact {config.precontact[0]}-{config.precontact[1]} leaves no contact "
                                       f"frames in a {frames}-frame sequence; lower it below the frame count")
             unit = len(specs) % config.units if config.units else -1  # units in turn over the whole plan
-            specs.append(SequenceSpec(id=f"f{fid:03d}-s{i:04d}", fabric_id=fid, index=i, action=actions[i],
+            specs.append(SequenceSpec(id=schema.sequence_id(fid, i), fabric_id=fid, index=i, action=actions[i],
                                       seed=s, num_frames=frames, precontact_frames=pre, split=str(split_of[i]),
                                       unit=unit))
     return specs
@@ -236,28 +228,20 @@ def unit_profiles(config: GenerateConfig, profile) -> list:
 
 # ---------------------------------------------------------------- files
 
-def sha256_of(path: Path) -> str:
-    """Checksum of a file, or of a PNG directory's frames in order."""
-    h = hashlib.sha256()
-    files = sorted(path.glob("*.png")) if path.is_dir() else [path]
-    for p in files:
-        with open(p, "rb") as f:
-            for chunk in iter(lambda: f.read(1 << 20), b""):
-                h.update(chunk)
-    return h.hexdigest()
-
-
 def load_manifest(root: str | Path) -> dict:
+    """The manifest of the dataset under ``root``, checked to be this format and version."""
     root = Path(root)
-    mpath = root / "manifest.json"
+    mpath = root / schema.MANIFEST
     if not mpath.exists():
-        raise GelsimError(f"{root} is not a gelsim dataset (no manifest.json); give a directory made by gelsim generate")
+        raise GelsimError(f"{root} is not a gelsim dataset (no {schema.MANIFEST}); give a directory made by "
+                          "gelsim generate")
     try:
         m = json.loads(mpath.read_text())
     except json.JSONDecodeError as e:
         raise GelsimError(f"{mpath} is not valid JSON ({e}); regenerate the dataset") from None
-    if not isinstance(m, dict) or m.get("format") != FORMAT:
-        raise GelsimError(f"{root} is not a gelsim dataset (manifest format is not {FORMAT!r})")
+    problem = schema.manifest_problem(m)
+    if problem:
+        raise GelsimError(f"{root}: {problem}; give a directory made by this version of gelsim generate")
     return m
 
 
@@ -266,7 +250,7 @@ def _check_out_dir(root: Path, options: dict) -> dict | None:
     if root.exists() and not root.is_dir():
         raise GelsimError(f"--out {root} is a file; give a directory")
     if root.exists() and any(root.iterdir()):
-        if not (root / "manifest.json").exists():
+        if not (root / schema.MANIFEST).exists():
             raise GelsimError(f"--out {root} holds files that are not a gelsim dataset; give an empty or new directory")
         m = load_manifest(root)
         # An option added after the dataset was made takes its default there.
@@ -362,11 +346,7 @@ def generate_sequence(spec: SequenceSpec) -> dict:
             encode_s += stage_clock() - te
     te = stage_clock()
     lpath = root / spec.labels_rel()
-    import io
-
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **out.labels)
-    atomic_write_bytes(lpath, buf.getvalue())
+    atomic_write_npz(lpath, **out.labels)
     encode_s += stage_clock() - te
     in_contact = np.asarray(out.labels["in_contact"], bool)
     onset = int(np.argmax(in_contact)) if in_contact.any() else -1
@@ -380,37 +360,24 @@ def generate_sequence(spec: SequenceSpec) -> dict:
                   seconds=round(time.perf_counter() - t0, 3))
     if spec.unit >= 0:
         record["unit"] = spec.unit
-    atomic_write_json(root / "records" / f"{spec.id}.json", record)
+    atomic_write_json(root / schema.record_path(spec.id), record)
     return record
 
 
 # ---------------------------------------------------------------- generate
 
-# Keys of a record that describe the data (timings vary run to run and stay out of the manifest).
-_MANIFEST_KEYS = ("id", "fabric_id", "action", "num_frames", "contact_onset", "precontact_frames", "split",
-                  "video", "labels", "seed", "sha256", "peak_force_n")
-
-
 def _manifest(config: GenerateConfig, profile, catalog, specs, records: dict[str, dict]) -> dict:
-    seqs = []
-    for s in specs:
-        r = records.get(s.id)
-        seqs.append({k: r[k] for k in _MANIFEST_KEYS + (("unit",) if "unit" in (r or {}) else ())} if r else
-                    dict(id=s.id, fabric_id=s.fabric_id, action=s.action, num_frames=s.num_frames, split=s.split))
+    seqs = [schema.sequence_entry(records[s.id]) if s.id in records else
+            dict(id=s.id, fabric_id=s.fabric_id, action=s.action, num_frames=s.num_frames, split=s.split)
+            for s in specs]
     fabric_ids = sorted({s.fabric_id for s in specs})
-    return {
-        "format": FORMAT, "format_version": FORMAT_VERSION,
-        "complete": len(records) == len(specs),
-        "generator_version": __version__, "seed": config.seed, "options": config.options(),
-        "catalog_version": catalog.version,
-        "profile": {"name": profile.name, "width_px": profile.image.width_px, "height_px": profile.image.height_px,
-                    "mm_per_px": profile.image.mm_per_px, "fps_hz": profile.image.fps_hz},
-        "fabrics": [{"id": f.id, "name": f.name, "family": f.family, "material": f.material}
-                    for f in (catalog[i] for i in fabric_ids)],
-        "splits": {k: sum(1 for s in specs if s.split == k) for k in SPLITS},
-        **(_units_section(config, profile) if config.units else {}),
-        "sequences": seqs,
-    }
+    return schema.make_manifest(
+        complete=len(records) == len(specs), generator_version=__version__, seed=config.seed,
+        options=config.options(), catalog_version=catalog.version,
+        profile={"name": profile.name, "width_px": profile.image.width_px, "height_px": profile.image.height_px,
+                 "mm_per_px": profile.image.mm_per_px, "fps_hz": profile.image.fps_hz},
+        fabrics=[{k: getattr(catalog[i], k) for k in schema.FABRIC_FIELDS} for i in fabric_ids],
+        sequences=seqs, **(_units_section(config, profile) if config.units else {}))
 
 
 def _units_section(config: GenerateConfig, profile) -> dict:
@@ -435,7 +402,7 @@ def _load_records(root: Path, specs: list[SequenceSpec]) -> dict[str, dict]:
     """Records of finished sequences whose files are still in place."""
     done = {}
     for s in specs:
-        rp = root / "records" / f"{s.id}.json"
+        rp = root / schema.record_path(s.id)
         if not rp.exists():
             continue
         try:
@@ -485,7 +452,7 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
     if need > free:
         raise GelsimError(f"too little disk under {root}: about {need / 1e9:.1f} GB needed, {free / 1e9:.1f} GB free; "
                           "free space or choose another --out")
-    atomic_write_json(root / "manifest.json", _manifest(config, profile, catalog, specs, records))
+    atomic_write_json(root / schema.MANIFEST, _manifest(config, profile, catalog, specs, records))
     workers = max(1, workers or os.cpu_count() or 1)
     total = len(specs)
     done = len(records)
@@ -515,7 +482,7 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
         from .previews import write_previews
 
         write_previews(root, manifest)
-    atomic_write_json(root / "manifest.json", manifest)
+    atomic_write_json(root / schema.MANIFEST, manifest)
     if previews and manifest["complete"]:
         from .stats import write_stats
 
@@ -530,7 +497,7 @@ def summarize_timings(root: str | Path, manifest: dict) -> dict:
     frames = 0
     wall = 0.0
     for s in manifest["sequences"]:
-        rp = root / "records" / f"{s['id']}.json"
+        rp = root / schema.record_path(s["id"])
         if not rp.exists():
             continue
         r = json.loads(rp.read_text())
@@ -550,8 +517,8 @@ def verify(root: str | Path, *, decode: bool = True, progress: Callable[[int, in
     """Check every file against the manifest; returns a list of faults (empty when sound).
 
     Checks: manifest complete; each sequence's video and labels present, their checksums
-    as recorded, the video decodes to ``num_frames`` frames and the labels have one row
-    per frame.
+    as recorded, the video decodes to ``num_frames`` frames and the labels hold every key of
+    :data:`gelsim.schema.LABELS` with its shape (one row per frame) and dtype.
     """
     from .video import count_frames
 
@@ -583,9 +550,7 @@ def verify(root: str | Path, *, decode: bool = True, progress: Callable[[int, in
         if lab.exists():
             try:
                 with np.load(lab) as z:
-                    n = len(z["normal_force_n"])
-                if n != s["num_frames"]:
-                    faults.append(f"{sid}: labels have {n} frames, manifest says {s['num_frames']}")
+                    faults += [f"{sid}: {p}" for p in schema.label_problems(z, s["num_frames"])]
             except Exception as e:  # any unreadable npz is a fault to report, not to crash on
                 faults.append(f"{sid}: labels unreadable ({type(e).__name__})")
         if progress:

@@ -16,30 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from .errors import GelsimError
-
-MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
-
-
-def _field(profile, scale: float) -> tuple[float, float, int, int, float]:
-    """(x0, y0, width, height, dx) of the sensor's field at ``scale`` times its resolution, in the
-    sensor frame (origin at the image centre, pixel centres)."""
-    if not (0 < scale <= 8 and math.isfinite(scale)):
-        raise GelsimError(f"scale {scale} is out of range; give 0 < scale <= 8")
-    h, w = profile.shape
-    hs, ws = max(1, round(h * scale)), max(1, round(w * scale))
-    dx = profile.image.mm_per_px * w / ws
-    return -(ws - 1) / 2.0 * dx, -(hs - 1) / 2.0 * dx, ws, hs, dx
-
-
-def _positive(name: str, value, unit: str = "mm") -> float:
-    if value is None or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-        raise GelsimError(f"{name} = {value!r} is not a positive number; give a value > 0 {unit}")
-    return float(value)
+from .scene import positive_mm as _positive
 
 
 def _on_field(obj, profile, scale: float) -> np.ndarray:
-    x0, y0, w, h, dx = _field(profile, scale)
-    return obj.heights(x0, y0, w, h, dx)
+    from .scene import field_heights
+
+    return field_heights(obj, profile, scale=scale)
 
 
 def sphere(diameter_mm: float, profile, *, center_mm=(0.0, 0.0), scale: float = 1.0) -> np.ndarray:
@@ -167,19 +150,14 @@ def _zbuffer_min(tri: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
     return zb.reshape(h, w)
 
 
-def load_indenter(name_or_path: str, profile, *, diameter_mm: float | None = None, **kw) -> np.ndarray:
-    """``"sphere"`` or ``"cylinder"`` (need ``diameter_mm``) or a mesh file path.
+def load_indenter(name_or_path: str, profile, *, diameter_mm: float | None = None, length_mm: float | None = None,
+                  angle_deg: float = 0.0, center_mm=(0.0, 0.0), scale: float = 1.0) -> np.ndarray:
+    """``"sphere"`` or ``"cylinder"`` (need ``diameter_mm``) or a mesh file path, as a protrusion map
+    (:func:`gelsim.scene.indenter` names the object; ``length_mm`` and ``angle_deg`` apply to the
+    cylinder only): float32 (H, W) mm at ``scale`` times the profile's resolution."""
+    import dataclasses
 
-    Extra keywords go to :func:`sphere`, :func:`cylinder` or :func:`mesh`.
-    """
-    name = str(name_or_path)
-    if name == "sphere":
-        return sphere(_positive("diameter_mm", diameter_mm), profile, **kw)
-    if name == "cylinder":
-        return cylinder(_positive("diameter_mm", diameter_mm), profile, **kw)
-    p = Path(name)
-    if p.suffix.lower() in MESH_SUFFIXES:
-        kw.pop("length_mm", None)
-        kw.pop("angle_deg", None)
-        return mesh(p, profile, **kw)
-    raise GelsimError(f"unknown indenter {name!r}; use sphere, cylinder or a mesh file ({', '.join(MESH_SUFFIXES)})")
+    from .scene import indenter
+
+    obj = indenter(name_or_path, diameter_mm=diameter_mm, length_mm=length_mm, angle_deg=angle_deg)
+    return _on_field(dataclasses.replace(obj, center_mm=tuple(center_mm)), profile, scale)

@@ -26,9 +26,9 @@ import numpy as np
 
 from .errors import GelsimError
 from .params import ASSETS_DIR, build, load_toml, param
+from .schema import ACTIONS  # noqa: F401  (the dataset's action names; gelsim.motion.ACTIONS for callers)
 
 MOTIONS_FILE = ASSETS_DIR / "motions.toml"
-ACTIONS = ("press", "slip", "twist")
 
 Range = tuple[float, float]
 

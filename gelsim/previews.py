@@ -8,8 +8,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .atomic import write_png
 from .errors import GelsimError
-from .realism import write_png as _write_png
+from .schema import ACTIONS, PREVIEWS_DIR
 from .video import read_video
 
 LABEL_SCALE = 0.4  # OpenCV Hershey font scale for 160-320 px tiles
@@ -43,18 +44,18 @@ def frame_strip(frames: np.ndarray, n: int = 6, width: int = 240, onset: int | N
 def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Path]:
     """Write ``previews/<action>.png`` strips and ``previews/contact_sheet.png``; returns the paths."""
     root = Path(root)
-    out_dir = root / "previews"
+    out_dir = root / PREVIEWS_DIR
     out_dir.mkdir(exist_ok=True)
     seqs = [s for s in manifest["sequences"] if "video" in s]
     written = []
-    for action in ("press", "slip", "twist"):
+    for action in ACTIONS:
         s = next((s for s in seqs if s["action"] == action), None)
         if s is None:
             continue
         frames = read_video(root / s["video"])
         strip = frame_strip(frames, onset=s.get("contact_onset"))
         p = out_dir / f"{action}.png"
-        _write_png(p, strip)
+        write_png(p, strip)
         written.append(p)
     # Contact sheet: per fabric, the frame of peak force of its first sequence.
     tiles = []
@@ -70,7 +71,7 @@ def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Pa
         tiles.append(_label(_tile(frames[k], tile_px), f"{s['fabric_id']} {names.get(s['fabric_id'], '')}"[:28]))
     if tiles:
         p = out_dir / "contact_sheet.png"
-        _write_png(p, _grid(tiles, min(10, len(tiles))))
+        write_png(p, _grid(tiles, min(10, len(tiles))))
         written.append(p)
     return written
 
@@ -111,7 +112,7 @@ def pick_across_families(manifest: dict, families: int) -> list[tuple[str, dict]
         if not in_fam:
             continue
         full = [fid for fid in sorted({s["fabric_id"] for s in in_fam})
-                if {s["action"] for s in in_fam if s["fabric_id"] == fid} >= {"press", "slip", "twist"}]
+                if {s["action"] for s in in_fam if s["fabric_id"] == fid} >= set(ACTIONS)]
         pool = [s for s in in_fam if s["fabric_id"] == full[0]] if full else in_fam
         picked = {}
         for s in pool:
@@ -142,7 +143,7 @@ def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int 
         raise GelsimError(f"{root} has no sequence in contact to show; generate the dataset first")
     names = {f["id"]: f["name"] for f in manifest.get("fabrics", [])}
     tiles: list[np.ndarray | None] = []
-    for action in ("press", "slip", "twist"):
+    for action in ACTIONS:
         for fam, by_action in picks:
             s = by_action.get(action)
             if s is None:

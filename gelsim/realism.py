@@ -13,9 +13,9 @@ For taxim's GelSight R1.5 pack this was checked: taxim's own simulator writes
 ``f0`` with ``cv2.imwrite`` (which expects BGR). Data loaded here is converted
 to RGB, the order of every gelsim image.
 
-Metrics (0-255 images): SSIM as in Wang et al. 2004 (Gaussian window 11 px,
-sigma 1.5, K1 0.01, K2 0.03, mean over the three channels and over the pixels
-whose window lies inside the image), PSNR and L1 (mean absolute error). They are
+Metrics (0-255 images): SSIM and PSNR of :mod:`gelsim.metrics` (SSIM as in Wang et al. 2004,
+mean over the three channels and over the pixels whose 11 px window lies inside the image) and
+L1 (mean absolute error). They are
 computed on a 400x400 crop centred on the contact (Taxim's protocol), inside the
 disk of 1.5 contact radii (the *contact*), and as *skill*, ``1 - MSE(sim, real) /
 MSE(background, real)`` inside that disk: 0 for the background alone, 1 for a
@@ -42,10 +42,11 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
+from .atomic import atomic_write_bytes
 from .errors import GelsimError
+from .metrics import psnr, ssim
 from .params import param
 
 TAXIM_VERSION = "1.4.1"
@@ -199,11 +200,8 @@ def fetch_taxim_pack(name: str = "r15") -> Path:
             blob = z.read(member)
     except (KeyError, zipfile.BadZipFile) as e:
         raise GelsimError(f"{wheels[-1]} holds no readable {member} ({e}); delete it and retry") from None
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_bytes(blob)
-    os.replace(tmp, out)
-    np.load(io.BytesIO(blob))  # fail now, not later, on a corrupt member
+    np.load(io.BytesIO(blob))  # fail now, not later, on a corrupt member (and write nothing)
+    atomic_write_bytes(out, blob)
     return out
 
 
@@ -275,41 +273,8 @@ def realism_records(path: str | Path | None = None) -> dict[str, RealismRecord]:
 
 
 # --------------------------------------------------------------------------------------
-# Metrics
+# Metrics on a contact (SSIM and PSNR themselves: gelsim.metrics)
 # --------------------------------------------------------------------------------------
-_SSIM_WIN = 11       # Wang et al. 2004: 11x11 circular-symmetric Gaussian, sigma 1.5
-_SSIM_SIGMA = 1.5
-_SSIM_K = (0.01, 0.03)
-
-
-def ssim(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean SSIM of two images (``(H, W)`` or ``(H, W, C)``, 0-255), averaged over channels and
-    over the pixels whose 11x11 window lies inside the image (H, W >= 11)."""
-    a = np.asarray(a, np.float64)
-    b = np.asarray(b, np.float64)
-    if a.shape != b.shape:
-        raise GelsimError(f"images have shapes {a.shape} and {b.shape}; compare images of one shape")
-    if min(a.shape[:2]) < _SSIM_WIN:
-        raise GelsimError(f"images of {a.shape[:2]} px are smaller than SSIM's {_SSIM_WIN} px window")
-    c1, c2 = (_SSIM_K[0] * 255) ** 2, (_SSIM_K[1] * 255) ** 2
-
-    def f(x):
-        return cv2.GaussianBlur(x, (_SSIM_WIN, _SSIM_WIN), _SSIM_SIGMA, borderType=cv2.BORDER_REFLECT)
-
-    mu_a, mu_b = f(a), f(b)
-    saa = f(a * a) - mu_a * mu_a
-    sbb = f(b * b) - mu_b * mu_b
-    sab = f(a * b) - mu_a * mu_b
-    s = ((2 * mu_a * mu_b + c1) * (2 * sab + c2)) / ((mu_a ** 2 + mu_b ** 2 + c1) * (saa + sbb + c2))
-    p = _SSIM_WIN // 2
-    return float(s[p:-p, p:-p].mean())
-
-
-def psnr(mse: float) -> float:
-    """PSNR in dB of a mean squared error on 0-255 images (inf for 0)."""
-    return float("inf") if mse <= 0 else float(10.0 * math.log10(255.0 ** 2 / mse))
-
-
 def crop_box(center_px, shape: tuple[int, int], size: int = CROP_PX) -> tuple[slice, slice]:
     """Rows and columns of the ``size`` square centred on ``center_px`` (x, y), shifted to lie inside."""
     h, w = shape
@@ -525,11 +490,3 @@ def side_by_side(real: np.ndarray, sim: np.ndarray, gain: float = 3.0) -> np.nda
     diff = np.clip(np.abs(real.astype(np.float32) - sim.astype(np.float32)) * gain, 0, 255).astype(np.uint8)
     return np.hstack([real, sim, diff])
 
-
-def write_png(path: str | Path, rgb: np.ndarray) -> None:
-    """Write an RGB image as PNG through a temporary name."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp.png")
-    if not cv2.imwrite(str(tmp), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
-        raise GelsimError(f"cannot write {path}; check that its folder exists and is writable")
-    os.replace(tmp, path)

@@ -35,6 +35,8 @@ from .errors import GelsimError
 # heightfield contacts are capped at 50 per pair, so finer cells buy nothing). contact.simulate
 # max-pools it further for speed (PHYSICS_CELL_MM there).
 PHYSICS_MM_PER_PX = 0.2
+# Files trimesh reads that an indenter may be given as (units mm).
+MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
 # Friction of the smooth test objects against silicone: assumed, the middle of the 0.4-1.0 range
 # of materials on silicone rubber (REFERENCES).
 DEFAULT_FRICTION = 0.6
@@ -92,7 +94,8 @@ def _grid(x0_mm, y0_mm, width_px, height_px, mm_per_px, center_mm, rotation_deg)
     return c * X + s * Y, -s * X + c * Y
 
 
-def _positive(name: str, value) -> float:
+def positive_mm(name: str, value) -> float:
+    """``value`` as a float if it is a finite length > 0 mm; else a GelsimError naming ``name``."""
     if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
         raise GelsimError(f"{name} = {value!r} is not a positive number; give a value > 0 mm")
     return float(value)
@@ -107,7 +110,7 @@ class Sphere:
     texture_mm = None
 
     def __post_init__(self):
-        _positive("diameter_mm", self.diameter_mm)
+        positive_mm("diameter_mm", self.diameter_mm)
 
     @property
     def name(self) -> str:
@@ -134,9 +137,9 @@ class Cylinder:
     texture_mm = None
 
     def __post_init__(self):
-        _positive("diameter_mm", self.diameter_mm)
+        positive_mm("diameter_mm", self.diameter_mm)
         if self.length_mm is not None:
-            _positive("length_mm", self.length_mm)
+            positive_mm("length_mm", self.length_mm)
 
     @property
     def name(self) -> str:
@@ -176,6 +179,46 @@ class Mesh:
         xs = x0_mm + np.arange(width_px) * mm_per_px - self.center_mm[0]
         ys = y0_mm + np.arange(height_px) * mm_per_px - self.center_mm[1]
         return mesh_heights(load_mesh(self.path), xs, ys, rotation_deg)
+
+
+def indenter(name: str, *, diameter_mm: float | None = None, length_mm: float | None = None,
+             angle_deg: float = 0.0) -> TouchedObject:
+    """The indenter ``name`` centred under the sensor: ``"sphere"`` or ``"cylinder"`` (of ``diameter_mm``;
+    the cylinder on its side, ``length_mm`` long, None = longer than any field, its axis ``angle_deg``
+    from +x towards +y) or the path of a mesh file (MESH_SUFFIXES, units mm)."""
+    name = str(name)
+    if name == "sphere":
+        return Sphere(positive_mm("diameter_mm", diameter_mm))
+    if name == "cylinder":
+        if not isinstance(angle_deg, (int, float)) or not math.isfinite(angle_deg):
+            raise GelsimError(f"angle_deg = {angle_deg} is not finite; give an angle in degrees")
+        return Cylinder(positive_mm("diameter_mm", diameter_mm),
+                        None if length_mm is None else positive_mm("length_mm", length_mm), float(angle_deg))
+    if Path(name).suffix.lower() in MESH_SUFFIXES:
+        return Mesh(name)
+    raise GelsimError(f"unknown indenter {name!r}; use sphere, cylinder or a mesh file ({', '.join(MESH_SUFFIXES)})")
+
+
+def sensor_field(profile, scale: float = 1.0) -> tuple[float, float, int, int, float]:
+    """``(x0_mm, y0_mm, width_px, height_px, mm_per_px)`` of the sensor's field of view at ``scale``
+    times its image resolution (0 < scale <= 8), in the sensor frame: origin at the image centre,
+    ``(x0, y0)`` the first pixel's centre."""
+    if not (0 < scale <= 8 and math.isfinite(scale)):
+        raise GelsimError(f"scale {scale} is out of range; give 0 < scale <= 8")
+    h, w = profile.shape
+    hs, ws = max(1, round(h * scale)), max(1, round(w * scale))
+    mm = profile.image.mm_per_px
+    # At the image's own size the pitch is the profile's exactly (mm * w / w may differ in the last bit).
+    dx = mm if ws == w else mm * w / ws
+    return -(ws - 1) / 2.0 * dx, -(hs - 1) / 2.0 * dx, ws, hs, dx
+
+
+def field_heights(obj: TouchedObject, profile, *, scale: float = 1.0, seed: int = 0) -> np.ndarray:
+    """``obj``'s heights over the sensor's field of view, the sensor centred over the object's origin
+    and unturned: float32 ``(H, W)`` mm at ``scale`` times the image resolution (:func:`sensor_field`),
+    the protrusion map :func:`gelsim.gel.press` takes."""
+    x0, y0, w, h, dx = sensor_field(profile, scale)
+    return obj.heights(x0, y0, w, h, dx, seed=seed)
 
 
 def as_object(obj) -> TouchedObject:

@@ -27,8 +27,7 @@ from typing import Callable
 import numpy as np
 
 from .errors import GelsimError
-
-ACTIONS = ("press", "slip", "twist")
+from .schema import ACTIONS, MANIFEST, PREVIEWS_DIR
 # The frame of a sequence that shows each action best.
 KEY_FRAME = {"press": "peak_force", "slip": "peak_shear", "twist": "peak_twist"}
 PERCENTILES = (5.0, 50.0, 95.0)
@@ -369,7 +368,7 @@ def dataset_stats(root: str | Path, *, crop: float = STAM_CPU_CROP, manifest: di
     try:
         w, h, mmpp = int(prof["width_px"]), int(prof["height_px"]), float(prof["mm_per_px"])
     except (KeyError, TypeError, ValueError):
-        raise GelsimError(f"{root}/manifest.json has no usable profile (width_px, height_px, mm_per_px); "
+        raise GelsimError(f"{root}/{MANIFEST} has no usable profile (width_px, height_px, mm_per_px); "
                           "regenerate the dataset") from None
     try:
         max_ind = load_profile(prof.get("name", "")).gel.max_indentation_mm
@@ -614,11 +613,11 @@ def write_stats(root: str | Path, out_dir: str | Path | None = None, *, crop: fl
     (:func:`stats_figure`) and, with ``sheet``, dataset_actions.png (:func:`gelsim.previews.action_sheet`,
     which decodes one video per tile). Every file is written atomically. ``manifest``: as in
     :func:`dataset_stats`. Returns (summary, paths written)."""
-    from .dataset import atomic_write_bytes, atomic_write_json, load_manifest
-    from .realism import write_png
+    from .atomic import atomic_write_bytes, atomic_write_json, write_png
+    from .dataset import load_manifest
 
     root = Path(root)
-    out = Path(out_dir) if out_dir is not None else root / "previews"
+    out = Path(out_dir) if out_dir is not None else root / PREVIEWS_DIR
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:

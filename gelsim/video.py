@@ -22,6 +22,7 @@ from typing import Iterable, Literal
 
 import numpy as np
 
+from .atomic import partial_path
 from .errors import GelsimError
 
 VideoFormat = Literal["h264", "ffv1", "png"]
@@ -41,7 +42,13 @@ def video_path(stem: str | Path, fmt: VideoFormat) -> Path:
 
 def _tmp_name(path: Path) -> Path:
     # The suffix keeps the container type visible to libav (it picks the muxer by name).
-    return path.with_name(f".{path.name}.partial-{os.getpid()}{path.suffix}")
+    return partial_path(path, suffix=path.suffix)
+
+
+# Why VideoWriter keeps its own rename instead of gelsim.atomic.atomic_open: libav opens and muxes
+# the file itself, by name (the container chosen by the suffix), over the whole sequence, and the
+# png format is a directory, which no file object can stand for. It uses the same temporary names
+# (gelsim.atomic.partial_path), so `gelsim generate` sweeps its leftovers like any other.
 
 
 class VideoWriter:
@@ -114,6 +121,9 @@ class VideoWriter:
         if self.fmt == "png":
             import cv2
 
+            # Not gelsim.atomic.write_png: a frame inside the temporary directory needs no rename of
+            # its own, and compression level 1 (not OpenCV's default 3) keeps encoding fast; the
+            # bytes are the png format's, so they must not change.
             ok = cv2.imwrite(str(self.tmp / f"{self.count:06d}.png"), frame[:, :, ::-1],
                              [cv2.IMWRITE_PNG_COMPRESSION, 1])
             if not ok:

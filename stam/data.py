@@ -1,10 +1,10 @@
 """Reader for ``gelsim generate`` datasets: manifest checks, frame cache, contact onset,
 windows of n consecutive frames.
 
-Layout read (written by gelsim.dataset): ``DIR/manifest.json`` with ``format ==
-"gelsim-dataset"``, ``format_version == 1``, ``complete == true``, ``fabrics`` (id, name,
-family) and ``sequences`` (id, fabric_id, action, num_frames, contact_onset, split,
-video, labels, ...). Videos are read with :func:`gelsim.video.read_video`.
+Layout read (:mod:`gelsim.schema`, written by gelsim.dataset): ``DIR/manifest.json`` of the format
+and version gelsim.schema names, ``complete == true``, ``fabrics`` (id, name, family) and
+``sequences`` (at least gelsim.schema.READ_FIELDS: id, fabric_id, num_frames, split, video; also
+action and contact_onset when present). Videos are read with :func:`gelsim.video.read_video`.
 
 Decoded frames are resized (squashed) to ``S x S`` px with area averaging and cached as
 ``uint8 (T, S, S, 3)`` ``.npy`` files under ``DIR/.stam-cache/`` (or a user cache directory
@@ -25,12 +25,13 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from gelsim import schema
+from gelsim.atomic import atomic_open
+from gelsim.schema import SPLITS
+
 from .errors import StamError
 from .stats import wilson_interval
 
-FORMAT = "gelsim-dataset"
-FORMAT_VERSION = 1
-SPLITS = ("train", "val", "test")
 STARTS = ("contact", "zero")
 ONSETS = ("detected", "true")
 # Input normalisation: tactile frames are not ImageNet photos and no ImageNet statistics
@@ -83,21 +84,18 @@ def load_manifest(data_dir: str | Path) -> dict:
     """Read and check ``DIR/manifest.json``; raise StamError for a missing, foreign or
     incomplete dataset."""
     d = Path(data_dir)
-    path = d / "manifest.json"
+    path = d / schema.MANIFEST
     if not d.is_dir():
         raise StamError(f"dataset directory {d} does not exist; pass the --out directory of `gelsim generate`")
     if not path.is_file():
-        raise StamError(f"{d} has no manifest.json; pass a directory made by `gelsim generate`")
+        raise StamError(f"{d} has no {schema.MANIFEST}; pass a directory made by `gelsim generate`")
     try:
         m = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as e:
         raise StamError(f"cannot read {path} ({e}); regenerate the dataset") from None
-    if not isinstance(m, dict) or m.get("format") != FORMAT:
-        raise StamError(f"{path} is not a gelsim dataset manifest (format {m.get('format') if isinstance(m, dict) else None!r}); "
-                          "pass a directory made by `gelsim generate`")
-    if m.get("format_version") != FORMAT_VERSION:
-        raise StamError(f"{path} has format_version {m.get('format_version')!r}, this reader knows {FORMAT_VERSION}; "
-                          "regenerate the dataset or upgrade stam")
+    problem = schema.manifest_problem(m)
+    if problem:
+        raise StamError(f"{path}: {problem}; pass a directory made by this version of `gelsim generate`")
     if m.get("complete") is not True:
         raise StamError(f"dataset {d} is incomplete (complete: false); rerun `gelsim generate` to finish it")
     for key in ("fabrics", "sequences"):
@@ -105,7 +103,7 @@ def load_manifest(data_dir: str | Path) -> dict:
             raise StamError(f"{path} has no {key}; regenerate the dataset")
     ids = {f["id"] for f in m["fabrics"]}
     for s in m["sequences"]:
-        for key in ("id", "fabric_id", "num_frames", "split", "video"):
+        for key in schema.READ_FIELDS:
             if key not in s:
                 raise StamError(f"sequence {s.get('id', '?')} in {path} lacks {key!r}; regenerate the dataset")
         if s["fabric_id"] not in ids:
@@ -136,14 +134,12 @@ def default_cache_dir(data_dir: Path) -> Path:
 
 
 def _save_atomic(path: Path, arr: np.ndarray | None = None, **arrays: np.ndarray) -> None:
-    """Write ``arr`` as .npy, or ``arrays`` as .npz, under a temporary name, then rename."""
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    with open(tmp, "wb") as f:
+    """Write ``arr`` as .npy, or ``arrays`` as (uncompressed) .npz, atomically (gelsim.atomic)."""
+    with atomic_open(path) as f:
         if arrays:
             np.savez(f, **arrays)
         else:
             np.save(f, arr)
-    os.replace(tmp, path)
 
 
 def thumbnails(frames: np.ndarray) -> np.ndarray:

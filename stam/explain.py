@@ -8,12 +8,13 @@
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
+
+from gelsim.atomic import write_figure
 
 from .data import TactileDataset, WindowDataset
 from .errors import StamError
@@ -76,14 +77,6 @@ def temporal_map(model, x: torch.Tensor, query: tuple[int, int] | None = None) -
     return {"map": row, "query": (r, c), "top3": top3}
 
 
-def _save(fig, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
-    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
 
 
 def explain(checkpoints: list[str], sequence: str | None = None, out: str | Path = ".",
@@ -135,7 +128,7 @@ def explain(checkpoints: list[str], sequence: str | None = None, out: str | Path
         result.setdefault("predictions", {})[cfg.model] = data.class_names[cls]
     fig.suptitle(f"Grad-CAM, {seq.id} ({data.class_names[label]})", fontsize=9)
     fig.tight_layout()
-    result["files"].append(str(_save(fig, out / "gradcam.png")))
+    result["files"].append(str(write_figure(out / "gradcam.png", fig, dpi=100)))
 
     for model, cfg, _ in loaded:
         if model.temporal is None:
@@ -163,7 +156,7 @@ def explain(checkpoints: list[str], sequence: str | None = None, out: str | Path
         fig.suptitle(f"STAM temporal attention (mean of {len(model.temporal)} modules), query cell "
                      f"{tm['query']} of frame {first}", fontsize=9)
         fig.tight_layout()
-        result["files"].append(str(_save(fig, out / "temporal.png")))
+        result["files"].append(str(write_figure(out / "temporal.png", fig, dpi=100)))
         result["temporal_query"] = tm["query"]
         result["temporal_top3"] = tm["top3"]
         break

@@ -1,14 +1,14 @@
-"""A small synthetic dataset in ``gelsim generate``'s exact layout, for tests and benchmarks.
+"""A small synthetic dataset in ``gelsim generate``'s exact layout (gelsim.schema), for tests and benchmarks.
 
 Each fabric is a class-dependent grating (orientation, period, colour tint) that appears
 inside a growing contact disk from ``contact_onset`` on, over a smooth background with
 Gaussian sensor noise; frames before the onset show only the background. It is a stand-in
-for real `gelsim generate` output, not a simulation.
+for real `gelsim generate` output, not a simulation: its labels hold only ``in_contact`` and
+``normal_force_n`` (there is no contact mechanics to label), so ``gelsim verify`` reports the
+other label keys as missing; everything stam reads is there.
 """
 from __future__ import annotations
 
-import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +23,8 @@ def make_synthetic_dataset(out: str | Path, num_fabrics: int = 4, seqs_per_fabri
 
     Splits are 7:2:1 by sequence within each fabric (for 10 sequences per fabric: 7, 2, 1).
     """
+    from gelsim import schema
+    from gelsim.atomic import atomic_write_json, atomic_write_npz
     from gelsim.video import video_path, write_video
 
     rng = np.random.default_rng(seed)
@@ -35,13 +37,13 @@ def make_synthetic_dataset(out: str | Path, num_fabrics: int = 4, seqs_per_fabri
         theta = np.pi * (f - 1) / num_fabrics
         period = 5.0 + 3.0 * ((f - 1) % 3)
         tint = np.array([1.0 + 0.15 * np.cos(theta), 1.0, 1.0 + 0.15 * np.sin(theta)], np.float32)
-        fabrics.append({"id": f, "name": f"synthetic-{f:03d}", "family": "synthetic"})
+        fabrics.append({"id": f, "name": f"synthetic-{f:03d}", "family": "synthetic", "material": "synthetic"})
         grating = np.sin(2 * np.pi * (xx * np.cos(theta) + yy * np.sin(theta)) / period)
         n_train = round(0.7 * seqs_per_fabric)
         n_val = round(0.2 * seqs_per_fabric)
         for k in range(seqs_per_fabric):
-            split = "train" if k < n_train else "val" if k < n_train + n_val else "test"
-            sid = f"f{f:03d}-s{k:04d}"
+            split = schema.SPLITS[0 if k < n_train else 1 if k < n_train + n_val else 2]
+            sid = schema.sequence_id(f, k)
             onset = int(rng.integers(1, max(2, num_frames // 3)))
             cx, cy = w * rng.uniform(0.35, 0.65), h * rng.uniform(0.35, 0.65)
             phase = rng.uniform(0, 2 * np.pi)
@@ -58,22 +60,22 @@ def make_synthetic_dataset(out: str | Path, num_fabrics: int = 4, seqs_per_fabri
                 frames.append(np.clip(img, 0, 255).astype(np.uint8))
                 in_contact.append(touching)
                 force.append(0.5 * max(0, t - onset + 1) if touching else 0.0)
-            stem = out / "videos" / f"f{f:03d}" / sid
-            vpath = write_video(video_path(stem, fmt), frames, fps=SYNTH_FPS_HZ, fmt=fmt)
-            lpath = out / "labels" / f"f{f:03d}" / f"{sid}.npz"
-            lpath.parent.mkdir(parents=True, exist_ok=True)
-            np.savez(lpath, in_contact=np.array(in_contact), normal_force_n=np.array(force, np.float32))
-            sequences.append({"id": sid, "fabric_id": f, "action": ("press", "slip", "twist")[k % 3],
-                              "num_frames": num_frames, "contact_onset": onset, "split": split,
-                              "video": str(vpath.relative_to(out)), "labels": str(lpath.relative_to(out)),
-                              "seed": int(seed * 100000 + f * 1000 + k), "sha256": {}})
-    manifest = {"format": "gelsim-dataset", "format_version": 1, "complete": complete,
-                "generator_version": "stam-synthetic", "seed": seed, "catalog_version": "synthetic",
-                "profile": {"name": "synthetic", "width_px": w, "height_px": h, "mm_per_px": 0.0197,
-                            "fps_hz": SYNTH_FPS_HZ},
-                "fabrics": fabrics, "sequences": sequences}
-    tmp = out / f".manifest.json.partial-{os.getpid()}"
-    tmp.write_text(json.dumps(manifest, indent=1))
-    os.replace(tmp, out / "manifest.json")
+            vpath = write_video(video_path(out / schema.video_stem(f, sid), fmt), frames, fps=SYNTH_FPS_HZ, fmt=fmt)
+            lpath = atomic_write_npz(out / schema.labels_path(f, sid), in_contact=np.array(in_contact),
+                                     normal_force_n=np.array(force, np.float32))
+            sequences.append(schema.sequence_entry({
+                "id": sid, "fabric_id": f, "action": schema.ACTIONS[k % 3], "num_frames": num_frames,
+                "contact_onset": onset, "precontact_frames": onset, "split": split,
+                "video": vpath.relative_to(out).as_posix(), "labels": lpath.relative_to(out).as_posix(),
+                "seed": int(seed * 100000 + f * 1000 + k),
+                "sha256": {"video": schema.sha256_of(vpath), "labels": schema.sha256_of(lpath)},
+                "peak_force_n": float(max(force))}))
+    manifest = schema.make_manifest(
+        complete=complete, generator_version="stam-synthetic", seed=seed,
+        options={"synthetic": {"num_fabrics": num_fabrics, "seqs_per_fabric": seqs_per_fabric,
+                               "num_frames": num_frames, "size": [w, h], "noise_grey": noise_grey, "format": fmt}},
+        catalog_version="synthetic",
+        profile={"name": "synthetic", "width_px": w, "height_px": h, "mm_per_px": 0.0197, "fps_hz": SYNTH_FPS_HZ},
+        fabrics=fabrics, sequences=sequences)
+    atomic_write_json(out / schema.MANIFEST, manifest)
     return out
-

@@ -19,7 +19,6 @@ import csv
 import dataclasses
 import json
 import math
-import os
 import random
 import sys
 import time
@@ -29,6 +28,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch.utils.data import DataLoader
+
+from gelsim.atomic import atomic_open, atomic_write_text
 
 from . import models
 from .backbone import AlexNet, feature_size, fold_batchnorm
@@ -63,9 +64,9 @@ def load_checkpoint(path: str | Path) -> dict:
 
 
 def save_atomic(obj, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    """``torch.save(obj)`` to ``path`` through gelsim's atomic writer (a killed run leaves the old file)."""
+    with atomic_open(path) as f:
+        torch.save(obj, f)
 
 
 def load_backbone(model_backbone: torch.nn.Module, path: str) -> None:
@@ -221,7 +222,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
                 group["lr"] = sched.eta_min + (base - sched.eta_min) * (
                     1 + math.cos(math.pi * sched.last_epoch / cfg.epochs)) / 2
     config = dataclasses.asdict(cfg)
-    (out / "config.json").write_text(json.dumps(config, indent=2))
+    atomic_write_text(out / "config.json", json.dumps(config, indent=2))
     logger = CsvLog(out / "log.csv", start_epoch - 1)
 
     for epoch in range(start_epoch, cfg.epochs + 1):

@@ -12,12 +12,12 @@ import argparse
 import dataclasses
 import json
 import math
-import os
 import sys
 from typing import Any
 
 import numpy as np
 
+from gelsim.atomic import atomic_write_text
 from gelsim.fidelity import get_fidelity
 from gelsim.gel import press
 from gelsim.gel.layer import disk_layer_factor, effective_modulus_mpa
@@ -167,10 +167,7 @@ def write_law(values: dict[str, Any], path=LAW_FILE) -> None:
               "contact: the gel spans them); support_length_mm (a fabric support's Pasternak shear length when\n"
               "the caller gives none: 0.5 mm, a typical cloth thickness; pass the fabric's own thickness).")
     text = dump_toml({"law": law}, header=header)
-    tmp = f"{path}.tmp"
-    with open(tmp, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
+    atomic_write_text(path, text)
     imprint_law.cache_clear()
 
 

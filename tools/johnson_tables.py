@@ -10,11 +10,11 @@ same fundamental. About a minute. Run from the repository root:
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 import numpy as np
 
+from gelsim.atomic import atomic_write_text
 from gelsim.gel import johnson
 from gelsim.params import dump_toml
 
@@ -52,10 +52,7 @@ def main() -> int:
               "fitted so that the pointwise map keeps the same fundamental.\n"
               f"1-D rows against Johnson's closed forms: contact within {dc:.4f}, kept within {dk:.4f}.")
     text = dump_toml(tables, header=header)
-    tmp = f"{johnson.TABLE_FILE}.tmp"
-    with open(tmp, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, johnson.TABLE_FILE)
+    atomic_write_text(johnson.TABLE_FILE, text)
     print(f"wrote {johnson.TABLE_FILE}")
     return 0
 

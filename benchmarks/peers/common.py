@@ -1,4 +1,10 @@
-"""Timing, PNG output and result records shared by the runners (stdlib + numpy: runs in every venv)."""
+"""Timing, PNG output and result records shared by the runners (stdlib + numpy: runs in every venv).
+
+The one place outside the package that writes a file on its own: run_taxim.py and run_tacto.py import
+this module inside the peers' venvs, which have neither gelsim nor OpenCV, so :func:`write_png` cannot
+use gelsim.atomic.write_png (run_ours.py, in the project's venv, does). It follows the same rule:
+a temporary ``.NAME.partial-PID`` beside the target, then a rename.
+"""
 from __future__ import annotations
 
 import argparse
@@ -34,7 +40,7 @@ def time_frames(fn, warmup: int, frames: int) -> dict:
 
 
 def write_png(path: str | Path, rgb: np.ndarray) -> None:
-    """Write uint8 ``(H, W, 3)`` RGB as PNG (zlib only; every venv can), atomically."""
+    """Write uint8 ``(H, W, 3)`` RGB as PNG (zlib only; every venv can), atomically (peers' venvs only)."""
     rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
     h, w, c = rgb.shape
     raw = b"".join(b"\x00" + rgb[r].tobytes() for r in range(h))
@@ -45,7 +51,7 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
     png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
            + chunk(b"IDAT", zlib.compress(raw, 1)) + chunk(b"IEND", b""))
     path = Path(path)
-    tmp = path.with_name(path.name + ".part")
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     tmp.write_bytes(png)
     os.replace(tmp, path)
 

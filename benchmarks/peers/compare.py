@@ -177,9 +177,9 @@ def main(argv=None) -> int:
 
 def finish(doc: dict, runs: list[dict], args) -> int:
     if args.save:
-        tmp = args.save.with_name(args.save.name + ".part")
-        tmp.write_text(json.dumps(doc, indent=1))
-        os.replace(tmp, args.save)
+        from gelsim.atomic import atomic_write_text
+
+        atomic_write_text(args.save, json.dumps(doc, indent=1))
     if args.json:
         print(json.dumps(doc))
     else:

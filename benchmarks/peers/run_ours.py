@@ -24,12 +24,14 @@ from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
+# common and scenes sit beside this script (Python puts a script's folder first on sys.path); gelsim is
+# the installed package (the project's venv).
+from common import RESOLUTIONS, emit, image_stats, runner_args, time_frames, wanted
+from scenes import FIELD_W_MM, SCENES, digest, imprint_mm, scene
+
+from gelsim.atomic import write_png
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent.parent))
-from common import RESOLUTIONS, emit, image_stats, runner_args, time_frames, wanted, write_png  # noqa: E402
-from scenes import FIELD_W_MM, SCENES, digest, imprint_mm, scene  # noqa: E402
 
 
 def profile_at(w: int, h: int):

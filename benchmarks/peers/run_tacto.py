@@ -24,7 +24,6 @@ import os
 import sys
 import tempfile
 from importlib.metadata import version
-from pathlib import Path
 
 import numpy as np
 
@@ -35,7 +34,8 @@ if not hasattr(np, "float"):
 if not hasattr(np, "infty"):
     np.infty = np.inf
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+# common and scenes sit beside this script (Python puts a script's folder first on sys.path): this runs in
+# tacto's venv, which has no gelsim (see README.md there). After the numpy aliases above, which tacto needs.
 from common import RESOLUTIONS, emit, image_stats, runner_args, time_frames, wanted, write_png  # noqa: E402
 from scenes import FIELD_H_MM, FIELD_W_MM, SCENES, SPHERE_RADIUS_MM, digest, imprint_mm, scene  # noqa: E402
 

@@ -13,13 +13,13 @@ from __future__ import annotations
 import os
 import sys
 from importlib.metadata import version
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import RESOLUTIONS, emit, image_stats, runner_args, time_frames, wanted, write_png  # noqa: E402
-from scenes import SCENES, digest, scene  # noqa: E402
+# common and scenes sit beside this script (Python puts a script's folder first on sys.path): this runs in
+# taxim's venv, which has no gelsim (see README.md there).
+from common import RESOLUTIONS, emit, image_stats, runner_args, time_frames, wanted, write_png
+from scenes import SCENES, digest, scene
 
 
 def gel_map(sim, h: int, w: int) -> np.ndarray:

@@ -71,22 +71,24 @@ def _list(args) -> int:
 
 
 def _show(args) -> int:
-    from ..fabrics.preview import check_out_path, preview, write_png
-    check_out_path(args.out)
+    from ..atomic import check_out_file, write_png
+    from ..fabrics.preview import preview
+    check_out_file(args.out)
     fab = _catalog(args)[args.id]
     img = preview(fab, size_mm=args.size_mm, mm_per_px=args.mm_per_px, seed=args.seed,
                   rotation_deg=args.rotation_deg)
-    path = write_png(args.out, img)
+    path = write_png(args.out, img, rgb=False)  # preview images are BGR
     print(f"wrote {path} ({img.shape[1]}x{img.shape[0]} px): {fab.id} {fab.name}")
     return 0
 
 
 def _sheet(args) -> int:
-    from ..fabrics.preview import check_out_path, contact_sheet, write_png
-    check_out_path(args.out)
+    from ..atomic import check_out_file, write_png
+    from ..fabrics.preview import contact_sheet
+    check_out_file(args.out)
     cat = _catalog(args)
     img = contact_sheet(cat, tile_mm=args.tile_mm, mm_per_px=args.mm_per_px, columns=args.columns,
                         seed=args.seed)
-    path = write_png(args.out, img)
+    path = write_png(args.out, img, rgb=False)  # preview images are BGR
     print(f"wrote {path} ({img.shape[1]}x{img.shape[0]} px): {len(cat)} fabrics")
     return 0

@@ -163,7 +163,7 @@ def run_generate(args: argparse.Namespace) -> int:
 
 
 def _dry_run(cfg, args) -> int:
-    from .. import dataset
+    from .. import dataset, schema
     from ..fabrics import load_catalog
     from . import print_json
 
@@ -179,8 +179,8 @@ def _dry_run(cfg, args) -> int:
     fid = get_fidelity(cfg.fidelity)
     workers = args.workers or os.cpu_count() or 1
     est_s = frames * fid.est_ms_per_frame_vga * (w * h) / (640 * 480) / 1000 / workers
-    counts = {a: sum(1 for s in specs if s.action == a) for a in dataset.ACTIONS}
-    splits = {k: sum(1 for s in specs if s.split == k) for k in dataset.SPLITS}
+    counts = {a: sum(1 for s in specs if s.action == a) for a in schema.ACTIONS}
+    splits = {k: sum(1 for s in specs if s.split == k) for k in schema.SPLITS}
     plan = {"out": str(args.out), "options": cfg.options(), "sequences": len(specs), "frames": frames,
             "actions": counts, "splits": splits, "resolution": [w, h], "workers": workers,
             "estimated_seconds": round(est_s, 1), "estimated_bytes": nbytes}

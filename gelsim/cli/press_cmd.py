@@ -1,12 +1,8 @@
-"""``gelsim press``: press an indenter into the simulated gel and compare with Hertz."""
+"""``gelsim press``: press an indenter into the simulated gel and compare with Hertz (gelsim.frame)."""
 from __future__ import annotations
 
 import argparse
-import math
 import sys
-import time
-
-from ..errors import GelsimError
 
 
 def register(sub) -> None:
@@ -40,71 +36,15 @@ def register(sub) -> None:
     p.set_defaults(handler=run_press)
 
 
-def press_report(indenter: str, force_n: float, *, diameter_mm: float | None = 4.0, length_mm: float | None = None,
-                 angle_deg: float = 0.0, profile="vitac", fidelity="reference",
-                 resolution_px: int | None = None) -> dict:
-    """Simulate one press and return the report ``gelsim press --json`` prints (lengths in mm)."""
-    from ..fidelity import get_fidelity
-    from ..gel import hertz, measure_contact_radius_mm, press
-    from ..indenters import load_indenter
-    from ..sensor import load_profile
-
-    if not (isinstance(force_n, (int, float)) and math.isfinite(force_n) and force_n > 0):
-        raise GelsimError(f"--force-n {force_n} is not a positive force; give a force > 0 N")
-    prof = load_profile(profile)
-    if resolution_px is not None:
-        prof = prof.with_resolution(resolution_px)
-    fid = get_fidelity(fidelity)
-    kw = {}
-    if indenter == "cylinder":
-        kw = {"length_mm": length_mm, "angle_deg": angle_deg}
-    t0 = time.perf_counter()
-    prot = load_indenter(indenter, prof, diameter_mm=diameter_mm if indenter in ("sphere", "cylinder") else None,
-                         **kw)
-    imp = press(prot, prof, fid, force_n=force_n)
-    elapsed = time.perf_counter() - t0
-    a = measure_contact_radius_mm(imp, prof.image.mm_per_px)
-    out = {
-        "indenter": indenter,
-        "diameter_mm": diameter_mm if indenter in ("sphere", "cylinder") else None,
-        "force_n": force_n,
-        "model": fid.imprint_model,
-        "fidelity": fid.name,
-        "profile": prof.name,
-        "resolution_px": list(prof.shape[::-1]),
-        "mm_per_px": prof.image.mm_per_px,
-        "contact_radius_mm": a,
-        "indentation_mm": imp.indentation_mm,
-        "hertz_contact_radius_mm": None,
-        "hertz_indentation_mm": None,
-        "contact_radius_ratio": None,
-        "indentation_ratio": None,
-        "contact_area_mm2": imp.contact_area_mm2,
-        "gel_force_n": imp.normal_force_n,
-        "max_depth_mm": float(imp.depth_mm.max()),
-        "bottomed_out": imp.bottomed_out,
-        "gel_thickness_mm": prof.gel.thickness_mm,
-        "gel_dome_radius_mm": prof.gel.dome_radius_mm or None,
-        "young_modulus_mpa": prof.gel.young_modulus_mpa,
-        "poisson_ratio": prof.gel.poisson_ratio,
-        "contact_radius_over_thickness": a / prof.gel.thickness_mm,
-        "elapsed_ms": round(elapsed * 1000.0, 1),
-    }
-    if indenter == "sphere":
-        # A domed gel adds its curvature to the sphere's: 1/R = 1/R_sphere + 1/R_dome.
-        dome = prof.gel.dome_radius_mm
-        d_eff = diameter_mm if not dome else 2.0 / (2.0 / diameter_mm + 1.0 / dome)
-        ha, hd = hertz(d_eff, force_n, prof.gel)
-        out.update(hertz_contact_radius_mm=ha, hertz_indentation_mm=hd,
-                   contact_radius_ratio=a / ha, indentation_ratio=imp.indentation_mm / hd)
-    return out
-
-
 def run_press(args: argparse.Namespace) -> int:
     from . import print_json
+    from ..frame import press_report
+    from ..scene import indenter
 
-    rep = press_report(args.indenter, args.force_n, diameter_mm=args.diameter_mm, length_mm=args.length_mm,
-                       angle_deg=args.angle_deg, profile=args.profile, fidelity=args.fidelity,
+    sized = args.indenter in ("sphere", "cylinder")
+    obj = indenter(args.indenter, diameter_mm=args.diameter_mm if sized else None, length_mm=args.length_mm,
+                   angle_deg=args.angle_deg)
+    rep = press_report(obj, args.force_n, profile=args.profile, fidelity=args.fidelity,
                        resolution_px=args.resolution_px)
     if args.json:
         print_json(rep)

@@ -121,7 +121,8 @@ def realism_report(profile="gelsight-r15", datapack=None, frames: str = "odd", *
                    ball_diameter_mm: float = 4.0, channel_order: str = "bgr", out=None) -> dict:
     """What ``gelsim realism --json`` prints (see :func:`gelsim.realism.evaluate`); ``mm_per_px``
     None keeps the profile's."""
-    from ..realism import evaluate, side_by_side, write_png
+    from ..atomic import write_png
+    from ..realism import evaluate, side_by_side
     from ..sensor import load_profile
 
     if mm_per_px is not None:

@@ -1,16 +1,10 @@
-"""``gelsim render``: one tactile frame of a fabric or an indenter, for a first look."""
+"""``gelsim render``: one tactile frame of a fabric or an indenter, for a first look (gelsim.frame)."""
 from __future__ import annotations
 
-import os
 import time
-from pathlib import Path
 
 from . import HelpFormatter, print_json
-from ..errors import GelsimError
-
-#: Force used when neither --force-n nor --depth-mm is given: a light press by hand
-#: (the ViTac data were pressed by hand; about 1 N makes a clear imprint on a 0.2 MPa gel).
-DEFAULT_FORCE_N = 1.0
+from ..frame import DEFAULT_FORCE_N
 
 
 def register(subparsers) -> None:
@@ -40,102 +34,28 @@ def register(subparsers) -> None:
     p.set_defaults(handler=run)
 
 
-def _write_png(path: Path, rgb) -> None:
-    import cv2
+def make_object(fabric: int | None, indenter: str | None, diameter_mm: float):
+    """The touched object the options name: catalog fabric ``fabric``, or the indenter (sphere by default)."""
+    from ..scene import FabricObject, indenter as make_indenter
 
-    if path.suffix.lower() != ".png":
-        raise GelsimError(f"--out {path} must end in .png; give a PNG file name")
-    if path.parent and not path.parent.exists():
-        raise GelsimError(f"folder {path.parent} does not exist; create it or choose another --out")
-    ok, buf = cv2.imencode(".png", rgb[..., ::-1])
-    if not ok:
-        raise GelsimError(f"could not encode {path}; check the image")
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_bytes(buf.tobytes())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def render_one(*, fabric: int | None = None, indenter: str | None = None, diameter_mm: float = 4.0,
-               force_n: float | None = None, depth_mm: float | None = None, profile="vitac",
-               backend: str | None = None, fidelity="balanced", seed: int = 0) -> tuple:
-    """One frame: ``(rgb uint8 (H, W, 3), info dict with the inputs, the imprint and stage times in ms)``."""
-    import cv2
-    import numpy as np
-
-    from ..fidelity import get_fidelity
-    from ..gel import press
-    from ..markers import displace
-    from ..optics import Renderer
-    from ..sensor import load_profile
-
-    times: dict[str, float] = {}
-    t = time.perf_counter()
-
-    def lap(stage: str) -> None:
-        nonlocal t
-        now = time.perf_counter()
-        times[stage] = round((now - t) * 1e3, 2)
-        t = now
-
-    prof = profile if not isinstance(profile, (str, Path)) else load_profile(profile)
-    fid = get_fidelity(fidelity)
-    backend = backend or fid.render_backend
-    if force_n is None and depth_mm is None:
-        force_n = DEFAULT_FORCE_N
-    for name, v in (("--force-n", force_n), ("--depth-mm", depth_mm), ("--diameter-mm", diameter_mm)):
-        if v is not None and not (np.isfinite(v) and v >= 0):
-            raise GelsimError(f"{name} {v} must be a finite number >= 0")
-    lap("setup")
-    info: dict = {"profile": prof.name, "shape_hw": list(prof.shape), "backend": backend, "fidelity": fid.name,
-                  "seed": seed}
-    support = texture = None
     if fabric is not None:
-        from ..fabrics import heightfield, load_catalog
-        fab = load_catalog()[fabric]
-        h, w = prof.shape
-        mm = prof.image.mm_per_px
-        prot = heightfield(fab, x0_mm=-(w - 1) / 2 * mm, y0_mm=-(h - 1) / 2 * mm, width_px=w, height_px=h,
-                           mm_per_px=mm, seed=seed)
-        support, texture = fab.support(), fab.texture_mm
-        info["object"] = {"fabric": fab.id, "name": fab.name, "family": fab.family}
-    else:
-        from ..indenters import load_indenter
-        name = indenter or "sphere"
-        prot = load_indenter(name, prof, diameter_mm=diameter_mm) if name in ("sphere", "cylinder") \
-            else load_indenter(name, prof)
-        info["object"] = {"indenter": name, "diameter_mm": diameter_mm if name in ("sphere", "cylinder") else None}
-    lap("object")
-    imprint = press(prot, prof, fid, force_n=force_n, depth_mm=depth_mm, support=support, texture_mm=texture)
-    lap("imprint")
-    markers = displace(prof, fid, imprint, seed=seed) if prof.markers.enabled else None
-    lap("markers")
-    renderer = Renderer(prof, backend, supersample=fid.supersample, seed=seed)
-    lap("renderer_setup")
-    try:
-        rgb = renderer.render(imprint.depth_mm, markers, seed=seed)
-    finally:
-        renderer.close()
-    lap("render")
-    info["imprint"] = {"indentation_mm": imprint.indentation_mm, "normal_force_n": imprint.normal_force_n,
-                       "contact_area_mm2": imprint.contact_area_mm2, "bottomed_out": imprint.bottomed_out,
-                       "max_depth_mm": float(imprint.depth_mm.max())}
-    info["markers"] = 0 if markers is None else len(markers)
-    info["stages_ms"] = times
-    return rgb, info
+        from ..fabrics import load_catalog
+
+        return FabricObject(load_catalog()[fabric])
+    name = indenter or "sphere"
+    return make_indenter(name, diameter_mm=diameter_mm if name in ("sphere", "cylinder") else None)
 
 
 def run(args) -> int:
+    from ..atomic import check_out_file, write_png
+    from ..frame import render_frame
+
     t0 = time.perf_counter()
-    rgb, info = render_one(fabric=args.fabric, indenter=args.indenter, diameter_mm=args.diameter_mm,
-                           force_n=args.force_n, depth_mm=args.depth_mm, profile=args.profile,
-                           backend=args.backend, fidelity=args.fidelity, seed=args.seed)
+    out = check_out_file(args.out)     # before the work, not after it
+    rgb, info = render_frame(make_object(args.fabric, args.indenter, args.diameter_mm), args.profile, args.fidelity,
+                             force_n=args.force_n, depth_mm=args.depth_mm, backend=args.backend, seed=args.seed)
     t = time.perf_counter()
-    out = Path(args.out)
-    _write_png(out, rgb)
+    write_png(out, rgb)
     info["stages_ms"]["write_png"] = round((time.perf_counter() - t) * 1e3, 2)
     info["total_ms"] = round((time.perf_counter() - t0) * 1e3, 2)
     info["out"] = str(out)

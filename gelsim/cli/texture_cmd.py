@@ -118,8 +118,9 @@ def run_texture(args) -> int:
             assert len(crop) == 2 and 16 <= crop[0] <= prof.shape[1] and 16 <= crop[1] <= prof.shape[0]
         except (ValueError, AssertionError):
             raise GelsimError(f"--crop {args.crop!r} must be WxH within the {prof.shape[1]}x{prof.shape[0]} frame") from None
-        if not str(args.sheet).endswith(".png"):
-            raise GelsimError(f"--sheet {args.sheet}: give a .png file name")
+        from ..atomic import check_out_file
+
+        check_out_file(args.sheet)
     tiles = []
     rows = []
     t0 = time.perf_counter()
@@ -230,7 +231,7 @@ def write_report(doc: dict, out_dir: Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from ..atomic import atomic_write_bytes, atomic_write_text
+    from ..atomic import atomic_write_text, write_figure
 
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out_dir / "texture.json", json.dumps(doc, indent=1))
@@ -261,9 +262,4 @@ def write_report(doc: dict, out_dir: Path) -> None:
                  f"{', after H.264' if doc['codec'] else ''})")
     ax.legend(fontsize=8, ncol=4)
     fig.tight_layout()
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    atomic_write_bytes(out_dir / "texture.png", buf.getvalue())
+    write_figure(out_dir / "texture.png", fig, dpi=110)

@@ -2,9 +2,6 @@
 from __future__ import annotations
 
 import math
-import os
-import tempfile
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -117,40 +114,3 @@ def contact_sheet(catalog: Catalog, *, tile_mm: float = 5.0, mm_per_px: float = 
         cv2.putText(sheet, label, (x, y + label_h - 5), _FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)
     _draw_scale_bar(sheet[pad + label_h:pad + label_h + n, pad:pad + n], mm_per_px, scale=0.4)
     return sheet
-
-
-def check_out_path(path: str | Path) -> Path:
-    """Fail early (before rendering) on an output path that cannot be a writable PNG."""
-    path = Path(path)
-    if path.suffix.lower() != ".png":
-        raise GelsimError(f"{path}: output must be a .png file; give a name ending in .png")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise GelsimError(f"{path}: folder {parent} does not exist; create it or choose another --out")
-    if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        raise GelsimError(f"{path}: not writable; choose a writable --out")
-    return path
-
-
-def write_png(path: str | Path, img: np.ndarray) -> Path:
-    """Write ``img`` as PNG via a temporary file and a rename; unwritable paths are a GelsimError."""
-    path = check_out_path(path)
-    ok, buf = cv2.imencode(".png", img)
-    if not ok:
-        raise GelsimError(f"{path}: could not encode the PNG image")
-    parent = path.parent if str(path.parent) else Path(".")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent)
-    except OSError as e:
-        raise GelsimError(f"{path}: cannot write there ({e.strerror}); choose a writable --out") from None
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(buf.tobytes())
-        os.replace(tmp, path)
-    except OSError as e:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise GelsimError(f"{path}: cannot write there ({e.strerror}); choose a writable --out") from None
-    return path

@@ -15,6 +15,9 @@ composited identically here, so the backends differ in shading alone:
   yardstick for ``fast``. It always shades from the profile's lights (a
   calibrated table has no meaning for a mesh renderer).
 
+Each backend is a :class:`~gelsim.optics.shader.Shader` (its contract: ``delta``, ``parts``,
+``compose``, ``close``), found by name and checked when the Renderer loads it.
+
 Pipeline per frame (all float32 DN 0-255 until the last step)::
 
     background (cached, vignetted, blurred) + blur(shading change) x vignetting
@@ -33,10 +36,11 @@ import numpy as np
 from ..errors import GelsimError
 from .composite import NoiseBank, blur_radius_px, darken_markers, gaussian_blur, marker_corners, to_uint8
 from .field import background_float, light_maps
+from .shader import Shader, shader_class, work_array
 
 BACKENDS = ("fast", "pyrender")
 
-__all__ = ["Renderer", "render", "available_backends", "BACKENDS"]
+__all__ = ["Renderer", "render", "available_backends", "BACKENDS", "Shader"]
 
 
 def available_backends() -> list[str]:
@@ -98,15 +102,7 @@ class Renderer:
         bg = gaussian_blur(background_float(self._fine, maps, self.seed), self._blur_fine)
         self._bg_fine = bg
         self._bg = bg if s == 1 else cv2.resize(bg, (w, h), interpolation=cv2.INTER_AREA)
-        if backend == "fast" and profile.shading.model == "lut":
-            from .lut import LutShader
-            self._shader = LutShader(self._fine, maps)
-        elif backend == "fast":
-            from .fast import FastShader
-            self._shader = FastShader(self._fine, maps)
-        else:
-            from .pyrender_backend import PyrenderShader
-            self._shader = PyrenderShader(self._fine, maps)
+        self._shader: Shader = shader_class(backend, profile)(self._fine, maps)
         self._bufs: dict[str, np.ndarray] = {}
         n = profile.noise
         self._noise = NoiseBank(profile.shape, n.read_sigma_dn, n.shot_gain, self.seed)
@@ -124,12 +120,8 @@ class Renderer:
         return self._compose(depth_mm, markers).copy()
 
     def _work(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
-        """A float32 work array kept between frames: a fresh 8 MB array per frame costs about
-        1 ms of page faults at 960x720, and the frame's passes are memory-bound."""
-        buf = self._bufs.get(name)
-        if buf is None or buf.shape != shape:
-            buf = self._bufs[name] = np.empty(shape, np.float32)
-        return buf
+        """A float32 work array kept between frames (:func:`~gelsim.optics.shader.work_array`)."""
+        return work_array(self._bufs, name, shape)
 
     def _compose(self, depth_mm, markers) -> np.ndarray:
         """Like :meth:`render_float`, but returns the cached background itself, or a work buffer
@@ -146,25 +138,12 @@ class Renderer:
                 corners = s * (corners + 0.5) - 0.5
         bg = self._bg_fine
         frame = self._work("frame", bg.shape)
-        compose = getattr(self._shader, "compose", None)
-        parts, fresh = None, True
-        if depth is not None and compose is not None:
-            fresh = not compose(frame, bg, depth, blur_radius_px(self._blur_fine), self._blur_fine, gaussian_blur)
-        elif depth is not None:
-            parts = self._shader_parts(depth)
-        if fresh and parts is None and corners is None:
+        fresh = True                                 # frame does not hold this frame's shading
+        if depth is not None:
+            fresh = not self._shader.compose(frame, bg, depth, blur_radius_px(self._blur_fine), self._blur_fine,
+                                             gaussian_blur)
+        if fresh and corners is None:
             return self._bg
-        for roi, change, blurred in parts or ():
-            if not blurred:
-                change = gaussian_blur(change, self._blur_fine, self._work("blur", change.shape))
-            if fresh and change.shape == bg.shape:
-                cv2.add(bg, change, frame)          # a whole-frame change: no copy of the background
-            else:
-                if fresh:
-                    np.copyto(frame, bg)
-                region = frame[roi]
-                cv2.add(region, change, region)
-            fresh = False
         if fresh:
             np.copyto(frame, bg)
         if corners is not None:
@@ -172,15 +151,6 @@ class Renderer:
         if s > 1:
             frame = cv2.resize(frame, self.profile.shape[::-1], interpolation=cv2.INTER_AREA)
         return frame
-
-    def _shader_parts(self, depth: np.ndarray):
-        """The shader's shading change as ``[(roi, change, blurred)]`` (see ``LutShader.parts``), or None."""
-        margin = blur_radius_px(self._blur_fine)
-        parts = getattr(self._shader, "parts", None)
-        if parts is not None:
-            return parts(depth, margin, self._blur_fine)
-        res = self._shader.delta(depth, margin_px=margin)
-        return None if res is None else [(res[0], res[1], False)]
 
     def render(self, depth_mm: np.ndarray | None, markers=None, *, seed: int | np.random.Generator = 0,
                noise: bool = True) -> np.ndarray:
@@ -198,9 +168,7 @@ class Renderer:
 
     def close(self) -> None:
         """Free the backend's resources (the GL context for pyrender)."""
-        close = getattr(self._shader, "close", None)
-        if close:
-            close()
+        self._shader.close()
 
 
 def render(depth_mm, markers, profile, *, backend: str = "fast", seed: int = 0) -> np.ndarray:

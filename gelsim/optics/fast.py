@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 
 from .field import LightMaps, vignetting_map
+from .shader import Shader
 
 
 def imprint_extent(depth_mm: np.ndarray) -> tuple[int, int, int, int] | None:
@@ -36,7 +37,7 @@ def imprint_roi(depth_mm: np.ndarray, margin_px: int) -> tuple[slice, slice] | N
     return grow_extent(imprint_extent(depth_mm), margin_px, depth_mm.shape)
 
 
-class FastShader:
+class FastShader(Shader):
     """Shading change of the membrane with respect to the flat gel, in image DN.
 
     ``profile``: sensor profile at the resolution being rendered; ``maps``: its
@@ -62,13 +63,6 @@ class FastShader:
         self._ks = [np.ascontiguousarray(sh.specular * m.att * vig, dtype=np.float32) for m in maps]
         self._flat = [np.ascontiguousarray(m.flat * vig, dtype=np.float32) for m in maps]
         self._bufs: dict[str, np.ndarray] = {}
-
-    def _buffer(self, name: str, shape: tuple[int, int]) -> np.ndarray:
-        """A reusable float32 work array (reallocated when the ROI shape changes)."""
-        buf = self._bufs.get(name)
-        if buf is None or buf.shape != shape:
-            buf = self._bufs[name] = np.empty(shape, np.float32)
-        return buf
 
     def delta(self, depth_mm: np.ndarray, margin_px: int = 0):
         """``(roi, delta)``: slices of the shaded box and float32 ``(h, w, 3)`` DN change there

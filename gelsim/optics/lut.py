@@ -61,6 +61,7 @@ import numpy as np
 from ..errors import GelsimError
 from .fast import grow_extent, imprint_extent
 from .field import pixel_grid_mm
+from .shader import Shader
 
 
 def table_path(profile) -> Path:
@@ -365,7 +366,7 @@ def coarse_features(depth: np.ndarray, mm_per_px: float, field_mm: tuple[float, 
     return np.stack(chans, axis=-1)
 
 
-class LutShader:
+class LutShader(Shader):
     """Colour change of the membrane from a calibrated table (see the module docstring).
 
     ``profile``: sensor profile at the resolution being rendered (its ``shading.table``
@@ -428,13 +429,6 @@ class LutShader:
         self._offy = np.ascontiguousarray(np.broadcast_to(
             ((np.arange(h) // th) * stride + half).astype(np.float32)[:, None], (h, w)))
         self._bufs: dict[str, np.ndarray] = {}
-
-    def _buffer(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
-        """A reusable float32 work array (reallocated when the box's shape changes)."""
-        buf = self._bufs.get(name)
-        if buf is None or buf.shape != shape:
-            buf = self._bufs[name] = np.empty(shape, np.float32)
-        return buf
 
     def _boxes(self, depth_mm: np.ndarray, margin_px: int, blur_px: float = 0.0):
         """The table's box and the (larger) shadows' box, or None for a flat gel."""

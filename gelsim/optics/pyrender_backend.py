@@ -26,6 +26,7 @@ from ..compat import gl_color, gl_unavailable_message, import_pyrender
 from ..errors import GelsimError
 from .fast import imprint_roi
 from .field import LightMaps, flat_shading_rgb, led_position_mm, vignetting_map
+from .shader import Shader
 
 #: Most vertices along one side of the gel mesh: 320 x 240 at 960x720 rendered in
 #: 178 ms (OSMesa); a finer mesh costs more than it changes at the 3 px step.
@@ -82,7 +83,7 @@ def _roughness(shininess: float) -> float:
     return float(math.sqrt(math.sqrt(2.0 / (shininess + 2.0))))
 
 
-class PyrenderShader:
+class PyrenderShader(Shader):
     """Shading change of the membrane in image DN, rendered with pyrender.
 
     ``profile``: sensor profile at the rendered resolution; ``maps``: its light maps.
@@ -214,6 +215,7 @@ class PyrenderShader:
         return roi, out
 
     def close(self) -> None:
+        """Delete the GL context (once)."""
         if getattr(self, "renderer", None) is not None:
             self.renderer.delete()
             self.renderer = None

@@ -81,7 +81,7 @@ def test_render_sphere_json_and_png(tmp_path, capsys, small_profile):
     out2 = tmp_path / "again.png"
     _run(capsys, "--out", out2, "--depth-mm", 0.4, "--profile", small_profile, "--seed", 3)
     np.testing.assert_array_equal(_read(out2), img)
-    assert not list(tmp_path.glob(".*.tmp"))
+    assert not list(tmp_path.glob(".*.partial-*"))
 
 
 def test_render_fabric_by_force(tmp_path, capsys, small_profile):
