@@ -960,24 +960,29 @@ def markdown_table(doc: dict) -> str:
     return "\n".join(lines)
 
 
-# Pareto panels: (key, axis label), each against CPU ms per frame.
-PARETO_PANELS = (("texture_err", "texture error: mean |1 - kept relief|"),
+# Pareto panels: (key, axis label), each against CPU ms per frame; the ratios with their range over
+# the fabric scenes as bars and the reference's 1 as a line (a level may keep too much texture as
+# well as too little: the errors below count both).
+PARETO_PANELS = (("kept_relief", "kept relief (ratio to reference; bars: scenes' range)"),
+                 ("image_texture", "image texture (ratio to reference; bars: range)"),
+                 ("texture_err", "texture error: mean |1 - kept relief|"),
                  ("image_texture_err", "image texture error: mean |1 - ratio|"),
                  ("marker_err_contact_mm", "marker error in the contact (mm)"),
                  ("contact_area_err", "contact-area error (relative)"))
 
 
 def pareto_plot(doc: dict, path: Path) -> None:
-    """Texture, image-texture, marker (in contact) and contact-area errors against CPU ms per frame
-    (log), one point per level, one line per resolution."""
+    """The texture ratios and the texture, image-texture, marker (in contact) and contact-area
+    errors against CPU ms per frame (log), one point per level, one line per resolution."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     runs = _runs(doc)
-    fig, axes = plt.subplots(2, 2, figsize=(11, 8))
+    fig, axes = plt.subplots(3, 2, figsize=(11, 11))
     for ax, (key, label) in zip(axes.ravel(), PARETO_PANELS):
+        ratio = key in ("kept_relief", "image_texture")
         for j, r in enumerate(runs):
             w, h = r["settings"]["resolution"]
             levels = sorted((lv for lv in r["levels"] if lv.get(key) is not None), key=lambda lv: lv["cpu_ms_per_frame"])
@@ -985,20 +990,26 @@ def pareto_plot(doc: dict, path: Path) -> None:
                 continue
             xs = [lv["cpu_ms_per_frame"] for lv in levels]
             ys = [lv[key] for lv in levels]
-            ax.plot(xs, ys, "-o" if j % 2 == 0 else "--s", label=f"{w}x{h}")
+            line, = ax.plot(xs, ys, "-o" if j % 2 == 0 else "--s", label=f"{w}x{h}")
+            if ratio:
+                lo = [y - lv[f"{key}_min"] for y, lv in zip(ys, levels)]
+                hi = [lv[f"{key}_max"] - y for y, lv in zip(ys, levels)]
+                ax.errorbar(xs, ys, yerr=[lo, hi], fmt="none", ecolor=line.get_color(), capsize=3, alpha=0.7)
             for i, lv in enumerate(levels):  # staggered labels: neighbouring levels may nearly coincide
                 ax.annotate(lv["name"], (xs[i], ys[i]), textcoords="offset points",
                             xytext=(6, 6 if (i + j) % 2 == 0 else -12), fontsize=8)
+        if ratio:
+            ax.axhline(1.0, color="black", lw=0.8)
         ax.set_xscale("log")
         ax.set_xlabel("CPU ms per frame, end to end (log)")
-        ax.set_ylabel(label)
+        ax.set_ylabel(label, fontsize=9)
         ax.set_ylim(bottom=0)
         ax.grid(True, alpha=0.3)
-        if len(ax.get_lines()) > 1:
+        if sum(1 for r in runs if any(lv.get(key) is not None for lv in r["levels"])) > 1:
             ax.legend(fontsize=8)
     scenes = runs[0]["settings"]["scenes"]
     fig.suptitle(f"gelsim fidelity levels against `{runs[0]['settings']['reference']}`, {len(scenes)} scenes "
-                 "(lower left is better)")
+                 "(errors: lower left is better)")
     fig.tight_layout()
     _save_fig(fig, path)
     plt.close(fig)
