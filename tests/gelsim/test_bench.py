@@ -23,7 +23,7 @@ TINY = BenchConfig(resolution=(96, 72), frames=5, precontact=1, fabrics=(57,), a
 KEYS = {"name", "ms_per_frame", "cpu_ms_per_frame", "stages_ms", "image_l1", "psnr", "ssim", "marker_err_mm",
         "marker_err_contact_mm", "force_err_n", "contact_area_err", "kept_relief", "kept_relief_min",
         "kept_relief_max", "image_texture", "image_texture_min", "image_texture_max", "texture_err",
-        "image_texture_err", "per_scene", "cached_scenes"}
+        "image_texture_err", "image_texture_fast", "image_texture_fast_err", "per_scene", "cached_scenes"}
 
 
 def test_ssim_identical_and_degraded():
@@ -56,17 +56,20 @@ def test_psnr_and_error_pooling():
 def test_texture_pooling_per_scene_then_over_scenes():
     acc = ErrorAcc()
     # scene a: gel relief 0.5 of the reference's in both frames, image texture 2x; scene b: 0.8 / 1
+    # (through the fast shader: 0.25 in scene a, not measured in b)
     for _ in range(2):
-        acc.add_texture("a", 0.01, 0.02, 4.0, 2.0)
+        acc.add_texture("a", 0.01, 0.02, 4.0, 2.0, 1.0, 4.0)
     acc.add_texture("b", 0.008, 0.01, 3.0, 3.0)
     acc.add_texture("b", float("nan"), 0.01, 3.0, 3.0)        # no region: left out
     ratios = acc.texture_ratios()
-    assert ratios["a"] == pytest.approx((0.5, 2.0)) and ratios["b"] == pytest.approx((0.8, 1.0))
+    assert ratios["a"] == pytest.approx((0.5, 2.0, 0.25)) and ratios["b"][:2] == pytest.approx((0.8, 1.0))
+    assert ratios["b"][2] is None
     s = acc.summary()
     assert s["kept_relief"] == pytest.approx(math.sqrt(0.5 * 0.8), abs=1e-4)   # geometric mean
     assert (s["kept_relief_min"], s["kept_relief_max"]) == (0.5, 0.8)
     assert s["image_texture"] == pytest.approx(math.sqrt(2.0), abs=1e-4)
     assert s["texture_err"] == pytest.approx((0.5 + 0.2) / 2) and s["image_texture_err"] == pytest.approx(0.5)
+    assert s["image_texture_fast"] == 0.25 and s["image_texture_fast_err"] == 0.75
     acc.add_area(12.0, 10.0)
     acc.add_area(8.0, 10.0)
     acc.add_area(5.0, 0.0)                                        # no reference contact: left out
@@ -125,6 +128,7 @@ def test_run_bench_levels(tiny_result):
     assert 0.2 < fast["kept_relief"] < 0.98 and 0.2 < fast["image_texture"] < 1.5
     assert fast["texture_err"] == pytest.approx(abs(1 - fast["kept_relief"]), abs=1e-3)   # one fabric scene
     assert 0 < fast["contact_area_err"] < 1
+    assert fast["image_texture_fast"] == fast["image_texture"]   # both levels render with the fast shader
     assert tiny_result["settings"]["scenes"] == ["sphere-press", "fabric57-press"]
     sphere = next(p for p in fast["per_scene"] if p["scene"] == "sphere-press")
     assert sphere["kept_relief"] is None and sphere["contact_area_err"] > 0   # no texture on a ball
@@ -183,6 +187,26 @@ def test_cache_returns_the_same_run_and_keys_on_what_matters(tmp_path):
     assert cache.run_key(dataclasses.replace(sc, seed=9), cfg, profile, bal, None) != k0
     assert cache.run_key(sc, dataclasses.replace(cfg, frames=6), profile, bal, None) != k0
     assert bench.RunCache("").get_run(k0) is None
+    # a cached run whose texture lacks a measure is measured again from its stored imprints
+    with np.load(files[0]) as z:
+        arrays = {k: z[k] for k in z.files if k != "tex_img_fast"}
+    assert arrays["imp_depth"].shape[1:] == (72, 96)
+    np.savez_compressed(files[0], **arrays)
+    third = {lv["name"]: lv for lv in bench.run_bench(cfg)["levels"]}
+    assert third["balanced"]["cached_scenes"] == 1 and third["fast"]["image_texture_fast"] == a["fast"]["image_texture_fast"]
+    with np.load(files[0]) as z:
+        assert "tex_img_fast" in z.files
+
+
+def test_supersampling_changes_the_image_not_the_gel():
+    """Through the fast shader at supersample 1 every supersampling value shows the same gel texture
+    (ratio 1); through its own supersampled renderer the image's texture changes."""
+    cfg = BenchConfig(resolution=(96, 72), frames=4, precontact=1, fabrics=(57,), actions=("press",), sphere=False)
+    sw = bench.run_convergence(cfg, knobs=("supersample",))["sweeps"][0]
+    pts = sw["points"]
+    assert [p["value"] for p in pts] == [1, 2, 3, 4]
+    assert all(p["image_texture_fast"] == 1 and p["kept_relief"] == 1 for p in pts)
+    assert pts[0]["image_texture_err"] > 0 and pts[-1]["image_texture_err"] == 0
 
 
 def test_reports(tiny_result, tmp_path):
