@@ -1,20 +1,20 @@
 """Time the gel imprint models and the markers at 960x720, ms per frame, on one core.
 
-    .venv/bin/python benchmarks/bench_gel.py [--json] [--repeat N] [--fit] [--agreement]
+    .venv/bin/python benchmarks/bench_gel.py [--json] [--repeat N] [--agreement]
 
-Cases: a 6 mm sphere pressed with 0.2 N, and a fabric-like texture (0.08 mm woven relief
-over a gentle dome, touching most of the pad) pressed with 1 N, with and without a
-fabric support (50 kPa/mm). Imprint: "pyramid" at the fast (0.5) and balanced (1.0)
-imprint scales, "elastic" at the reference level. Markers: "gaussian" and "elastic"
-on the sphere's and the fabric's imprint with shear and twist. Reports the median of
---repeat runs, wall-clock and CPU time (CPU time is steadier on a shared machine).
-Also catalog fabrics over the whole pad at 2 N on their support, as gelsim.sequence presses
-them (plain weave, knit, leather; fast and balanced only: the elastic reference takes
-10-60 s there).
-``--fit`` refits the pyramid law to the elastic model and rewrites assets/imprint_law.toml.
-``--agreement`` compares the fast and balanced models with the elastic reference on seven
-catalog fabrics (the cases of tests/gelsim/test_gel_fabrics.py: texture correlation, slope,
-contact and approach ratios), rigid and on their support; a few minutes.
+Cases: a 6 mm sphere pressed with 0.2 N, and a fabric-like texture (0.08 mm woven relief, 0.35 x
+0.3 mm, over a gentle dome, touching most of the pad) pressed with 1 N, rigid and on a cotton
+poplin's support (catalog fabric 1's compression and yarn flattening), texture scale 0.35 mm.
+Imprint: the two-scale model at the fast (0.5) and balanced (1.0) imprint scales, the pyramid
+(kept for comparison) at 1.0, the elastic reference. Markers: "gaussian" and "elastic" on the
+sphere's and the fabric's balanced imprint with shear and twist. Reports the median of --repeat
+runs, wall-clock and CPU time (CPU time is steadier on a shared machine). Also catalog fabrics
+over the whole pad at 2 N on their support, as gelsim.sequence presses them (plain weave, knit,
+leather; not the elastic reference: it takes 10-60 s there).
+``--agreement`` compares the fast and balanced models with the elastic reference on seven catalog
+fabrics (the cases of tests/gelsim/test_gel_fabrics.py: texture correlation, slope, contact and
+approach ratios), rigid and on their support; a few minutes.
+The pyramid's force law is refitted by tools/fit_pyramid_law.py.
 """
 from __future__ import annotations
 
@@ -37,9 +37,13 @@ from gelsim import indenters  # noqa: E402
 from gelsim.runtime import configure_worker  # noqa: E402
 from gelsim.fabrics import heightfield, load_catalog  # noqa: E402
 from gelsim.fidelity import get_fidelity  # noqa: E402
-from gelsim.gel import fit_pyramid_law, press, write_law  # noqa: E402
+from gelsim.gel import press  # noqa: E402
 from gelsim.markers import displace  # noqa: E402
 from gelsim.sensor import load_profile  # noqa: E402
+
+
+# The fabric-like relief's larger pitch, mm: its texture scale for the two-scale model.
+FABRIC_LIKE_TEXTURE_MM = 0.35
 
 
 def fabric_like(profile, seed: int = 0) -> np.ndarray:
@@ -104,43 +108,40 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", action="store_true", help="print one JSON document")
     ap.add_argument("--repeat", type=int, default=20, help="runs per fast case (elastic: a quarter, at least 1)")
-    ap.add_argument("--fit", action="store_true", help="refit the pyramid law and rewrite assets/imprint_law.toml")
     ap.add_argument("--agreement", action="store_true", help="fast models vs elastic on seven fabrics (table)")
     args = ap.parse_args(argv)
     configure_worker()
-    if args.fit:
-        res = fit_pyramid_law()
-        write_law(res)
-        print(json.dumps(res, indent=2))
-        return 0
     if args.agreement:
         return agreement_table(args.json)
     prof = load_profile("vitac")
     sphere = indenters.sphere(6.0, prof, center_mm=(0.8, -0.4))
     fabric = fabric_like(prof)
-    cases = {"sphere": (sphere, 0.2, None), "fabric": (fabric, 1.0, None), "fabric_supported": (fabric, 1.0, 50.0)}
+    poplin = load_catalog()[1]
+    # (protrusion, force N, support or None, texture scale mm or None)
+    cases = {"sphere": (sphere, 0.2, None, None), "fabric": (fabric, 1.0, None, FABRIC_LIKE_TEXTURE_MM),
+             "fabric_supported": (fabric, 1.0, poplin.support(), FABRIC_LIKE_TEXTURE_MM)}
     for fid in (1, 47, 86):
         fab = load_catalog()[fid]
-        cases[f"fabric{fid}_pad"] = (catalog_patch(fab, prof), 2.0,
-                                     fab.compressive_modulus_kpa / fab.thickness_mm, fab.thickness_mm)
-    levels = {"pyramid_fast": get_fidelity("fast"), "pyramid_balanced": get_fidelity("balanced"),
+        cases[f"fabric{fid}_pad"] = (catalog_patch(fab, prof), 2.0, fab.support(), fab.texture_mm)
+    bal = get_fidelity("balanced")
+    levels = {"twoscale_fast": get_fidelity("fast"), "twoscale_balanced": bal,
+              "pyramid_balanced": dataclasses.replace(bal, imprint_model="pyramid"),
               "elastic_reference": dataclasses.replace(get_fidelity("reference"), imprint_model="elastic")}
     results: dict = {"resolution": list(prof.shape[::-1]), "imprint": {}, "markers": {},
                      "load_avg": os.getloadavg()[0]}
     imprints = {}
     for lname, fid in levels.items():
-        for cname, (prot, force, ks, *ell) in cases.items():
+        for cname, (prot, force, support, texture_mm) in cases.items():
             if fid.imprint_model == "elastic" and cname.endswith("_pad"):
                 continue
             rep = max(1, args.repeat // 4) if fid.imprint_model == "elastic" else args.repeat
-            run = lambda: press(prot, prof, fid, force_n=force, support_stiffness_kpa_per_mm=ks,  # noqa: E731
-                                support_length_mm=ell[0] if ell else None)
+            run = lambda: press(prot, prof, fid, force_n=force, support=support, texture_mm=texture_mm)  # noqa: E731
             r = timed(run, rep)
             im = run()
             r.update(indentation_mm=round(im.indentation_mm, 5), contact_area_mm2=round(im.contact_area_mm2, 3),
-                     imprint_scale=fid.imprint_scale)
+                     imprint_model=fid.imprint_model, imprint_scale=fid.imprint_scale)
             results["imprint"][f"{lname}/{cname}"] = r
-            if lname == "pyramid_balanced":
+            if lname == "twoscale_balanced":
                 imprints[cname] = im
             if not args.json:
                 print(f"imprint {lname:18} {cname:17} {r['wall_ms']:9.2f} ms wall {r['cpu_ms']:9.2f} ms cpu  "

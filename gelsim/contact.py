@@ -155,18 +155,6 @@ class Surface:
         return ((1 - fv) * ((1 - fu) * h[i0, j0] + fu * h[i0, j0 + 1])
                 + fv * ((1 - fu) * h[i0 + 1, j0] + fu * h[i0 + 1, j0 + 1]))
 
-    @classmethod
-    def from_fabric(cls, fabric, motion: Motion, profile: SensorProfile, *, mm_per_px: float = 0.2,
-                    seed: int = 0) -> "Surface":
-        """A catalog fabric's surface over the motion's travel (kept for the benchmarks' callers;
-        the pipeline builds any object's with :func:`gelsim.scene.physics_surface`)."""
-        from .scene import FabricObject, physics_surface
-
-        if mm_per_px != 0.2:
-            raise GelsimError("Surface.from_fabric builds the physics grid (0.2 mm); use gelsim.scene.travel_patch "
-                              "for another resolution")
-        return physics_surface(FabricObject(fabric), motion, profile, seed=seed)
-
 
 @dataclass(frozen=True)
 class ContactFrames:
@@ -524,7 +512,7 @@ def _check_coverage(motion: Motion, surface: Surface, profile: SensorProfile) ->
     if xmin - r < sx0 or ymin - r < sy0 or xmax + r > sx1 or ymax + r > sy1:
         raise GelsimError(f"the surface ({sx0:.1f}..{sx1:.1f} x {sy0:.1f}..{sy1:.1f} mm) does not cover the sensor's "
                           f"travel ({xmin - r:.1f}..{xmax + r:.1f} x {ymin - r:.1f}..{ymax + r:.1f} mm); build it "
-                          "with Surface.from_fabric or enlarge it")
+                          "with gelsim.scene.physics_surface or enlarge it")
 
 
 def _plan(motion: Motion, dt: float, n_steps: int, i_contact: int, dur_s: float, x_start: float,

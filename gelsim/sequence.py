@@ -73,7 +73,6 @@ class StageTimer:
 
 
 # The image-resolution heights of a sequence's object (kept under its old name for callers).
-FabricPatch = HeightPatch
 
 
 @dataclass

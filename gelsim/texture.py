@@ -110,6 +110,15 @@ def contact_region(contact_mask: np.ndarray, texture_px: float, rim_px: float) -
     return cv2.erode(app, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
 
 
+def texture_frames(renderer, depth_mm: np.ndarray, band: Band, mm_per_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """The noiseless, markerless frames (uint8 (H, W, 3)) of ``depth_mm`` (mm, (H, W)) and of the same
+    depth smoothed beyond the band. Their difference is the texture's own share of the image: the
+    contact's smooth shading (the dome's rim) and the background's illumination field, both partly
+    in a coarse band, cancel in it."""
+    smooth = cv2.GaussianBlur(depth_mm, (0, 0), band.sigmas_px(mm_per_px)[1], borderType=cv2.BORDER_REFLECT)
+    return renderer.render(depth_mm, None, noise=False), renderer.render(smooth, None, noise=False)
+
+
 @dataclass
 class TextureBudget:
     """One fabric, one force: the texture at each stage (see the module docstring). Lengths mm,
@@ -188,12 +197,7 @@ def texture_budget(fabric, force_n: float, profile, fidelity, *, seed: int = 0, 
     slope = np.hypot(gx, gy)[region] if region.any() else np.array([np.nan])
     t0 = time.perf_counter()
     ren = renderer or Renderer(profile, "fast", seed=0)
-    # The texture's own share of the image: the frame minus the frame of the same imprint without its
-    # texture (the depth smoothed beyond the band), so that the contact's smooth shading (the dome's
-    # rim) and the background's illumination field, both partly in a coarse band, do not count.
-    smooth = cv2.GaussianBlur(im.depth_mm, (0, 0), band.sigmas_px(mm)[1], borderType=cv2.BORDER_REFLECT)
-    clean = ren.render(im.depth_mm, None, noise=False)
-    macro = ren.render(smooth, None, noise=False)
+    clean, macro = texture_frames(ren, im.depth_mm, band, mm)
     flat = ren.render(None, None, noise=False)
     rng = np.random.default_rng(seed)
     noise_only = [ren.render(None, None, seed=rng) for _ in range(CODEC_FRAMES)]

@@ -12,6 +12,7 @@ from gelsim.contact import ContactFrames, Surface, _check_stable, gel_stiffness,
 from gelsim.errors import GelsimError
 from gelsim.fidelity import get_fidelity
 from gelsim.motion import Motion, sample_motion
+from gelsim.scene import FabricObject, physics_surface
 from gelsim.sensor import load_profile
 
 PROFILE = load_profile("vitac")
@@ -236,12 +237,12 @@ def test_surface_height_at_bilinear():
     assert s.height_at(np.array(1.5), np.array(2.0)) == pytest.approx(1.0)
 
 
-def test_from_fabric_covers_travel_and_simulates():
+def test_physics_surface_covers_travel_and_simulates():
     from gelsim.fabrics import load_catalog
 
     fabric = next(iter(load_catalog()))
     m = sample_motion("slip", 3)
-    surf = Surface.from_fabric(fabric, m, PROFILE, mm_per_px=0.2, seed=1)
+    surf = physics_surface(FabricObject(fabric), m, PROFILE, seed=1)
     assert surf.heights_mm.dtype == np.float32 and surf.heights_mm.min() >= 0
     assert surf.friction == fabric.friction
     xmin, ymin, xmax, ymax = m.travel_bounds_mm()

@@ -17,14 +17,17 @@ from gelsim import indenters
 from gelsim.contact import Surface, simulate
 from gelsim.errors import GelsimError
 from gelsim.fabrics import heightfield, load_catalog
+from gelsim.fabrics.catalog import Fabric
 from gelsim.fidelity import Fidelity, get_fidelity
 from gelsim.gel import FabricSupport, press
+from gelsim.gel.twoscale import MIN_TEXTURE_PX
 from gelsim.markers import displace, marker_grid
-from gelsim.motion import Motion, sample_motion
+from gelsim.motion import ForceRanges, Motion, load_motion_ranges, sample_motion
 from gelsim.optics import Renderer
 from gelsim.params import build
 from gelsim.sensor import GelSpec, ImageSpec, MarkerSpec, load_profile
 from gelsim.sequence import PHYSICS_MM_PER_PX, SequenceOutput, render_sequence
+from gelsim.texture import texture_budget
 
 FAST = get_fidelity("fast")
 BAL = get_fidelity("balanced")
@@ -276,6 +279,159 @@ def test_fabric_extremes(changes):
     h = heightfield(fabric, x0_mm=-5, y0_mm=-5, width_px=120, height_px=90, mm_per_px=0.08, seed=1)
     assert h.dtype == np.float32 and np.isfinite(h).all() and h.min() >= 0
     assert h.max() <= 1.5 * fabric.relief_mm + 1e-6
+
+
+# ------------------------------------------------------------------------------ texture edges
+# The edges the texture work adds: pitches near the pixel pitch, relief near zero and near the gel's
+# travel, the motion range's extreme forces, texture below the two-scale model's 4 px per period.
+# Each gives finite output within the pad's travel, or a clear GelsimError outside the documented
+# ranges (the catalog's relief 0.005-2 mm and pitch > 0.02 mm, motions.toml's forces).
+HIRES = load_profile("vitac")                        # 960x720, 0.0197 mm per px: the dataset's
+TEX = load_profile("vitac").with_resolution(160, 120)  # 0.118 mm per px
+
+
+def fabric_with(fid, **changes):
+    """A catalog fabric with ``changes``, validated as a catalog entry."""
+    return build(Fabric, {**load_catalog()[fid].to_dict(), **changes}, where="test")
+
+
+def pad_heights(fabric, profile, seed=0):
+    h, w = profile.shape
+    mm = profile.image.mm_per_px
+    return heightfield(fabric, x0_mm=-(w - 1) / 2 * mm, y0_mm=-(h - 1) / 2 * mm, width_px=w, height_px=h,
+                       mm_per_px=mm, seed=seed, rotation_deg=fabric.orientation_deg)
+
+
+def press_fabric(fabric, profile, fid, force_n, **kw):
+    return press(pad_heights(fabric, profile), profile, fid, force_n=force_n, support=fabric.support(),
+                 texture_mm=fabric.texture_mm, **kw)
+
+
+def check_budget(b):
+    for k in ("fabric_relief_mm", "gel_relief_mm", "kept", "gel_slope_rms", "image_dn", "noise_dn", "snr"):
+        v = getattr(b, k)
+        assert math.isfinite(v) and v >= 0, k
+
+
+@pytest.mark.parametrize("pitch_px", [1.07, 2.0, 4.0])
+@pytest.mark.parametrize("fid", [FAST, BAL, PYRAMID], ids=["twoscale-0.5", "twoscale-1.0", "pyramid"])
+def test_pitch_near_the_pixel_pitch(fid, pitch_px):
+    """A plain weave whose pitch is 1-4 pixels of the 960x720 camera (0.021 mm: just above the
+    catalog's 0.02 mm floor): the imprint stays finite and within the travel; the texture budget's
+    band (half the pitch: below a pixel) still measures finite numbers."""
+    pitch = pitch_px * HIRES.image.mm_per_px
+    fab = fabric_with(2, warp_pitch_mm=pitch, weft_pitch_mm=pitch, warp_width_mm=0.8 * pitch,
+                      weft_width_mm=0.8 * pitch, relief_mm=0.01)
+    im = press_fabric(fab, HIRES, fid, 2.5)
+    check_imprint(im, HIRES)
+    assert im.contact_mask.any() and im.normal_force_n == pytest.approx(2.5, rel=0.02)
+    if fid is BAL:
+        check_budget(texture_budget(fab, 2.5, HIRES, fid, codec=False))
+
+
+def test_texture_below_four_px_per_period_skips_the_texture_stage():
+    """Below MIN_TEXTURE_PX pixels per period on the imprint grid the two-scale model presses the
+    area-averaged surface: exactly as for an object without texture. The fast level's half-scale
+    grid at 960x720 (0.039 mm per px) puts that threshold at 0.158 mm: a 0.15 mm texture is skipped
+    there and kept at balanced's full scale; 0.17 mm is kept by both."""
+    prot = pad_heights(load_catalog()[14], HIRES)   # silk organza, 0.16 mm
+    sup = load_catalog()[14].support()
+    dx_fast = HIRES.image.mm_per_px / FAST.imprint_scale
+    assert 0.15 < MIN_TEXTURE_PX * dx_fast < 0.17
+
+    def run(fid, tex):
+        return press(prot, HIRES, fid, force_n=2.0, support=sup, texture_mm=tex)
+
+    smooth = run(FAST, None)
+    skipped = run(FAST, 0.15)
+    np.testing.assert_array_equal(skipped.depth_mm, smooth.depth_mm)
+    np.testing.assert_array_equal(skipped.contact_mask, smooth.contact_mask)
+    assert skipped.indentation_mm == smooth.indentation_mm
+    kept = run(FAST, 0.17)
+    check_imprint(kept, HIRES)
+    assert np.abs(kept.depth_mm - smooth.depth_mm).max() > 1e-4      # the texture stage ran
+    full = run(BAL, 0.15)
+    assert np.abs(full.depth_mm - run(BAL, None).depth_mm).max() > 1e-4
+    for tex in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(GelsimError, match="texture_mm"):
+            run(BAL, tex)
+
+
+@pytest.mark.parametrize("fid", [FAST, BAL, ELASTIC, PYRAMID], ids=["twoscale-0.5", "twoscale-1.0", "elastic",
+                                                                     "pyramid"])
+def test_relief_near_zero(fid):
+    """The catalog's least relief (0.005 mm) on a fine weave: a nearly smooth cloth; the gel keeps at
+    most the cloth's relief and the texture budget stays finite."""
+    fab = fabric_with(2, relief_mm=0.005)
+    im = press_fabric(fab, TEX, fid, 2.5)
+    check_imprint(im, TEX)
+    assert im.normal_force_n == pytest.approx(2.5, rel=0.02)
+    b = texture_budget(fab, 2.5, TEX, fid, codec=False)
+    check_budget(b)
+    assert b.gel_relief_mm <= 2 * b.fabric_relief_mm
+
+
+def test_relief_outside_the_catalog_range_is_a_clear_error():
+    for v in (0.004, 2.01):
+        with pytest.raises(GelsimError, match="relief_mm"):
+            fabric_with(2, relief_mm=v)
+    with pytest.raises(GelsimError, match="warp_pitch_mm"):
+        fabric_with(2, warp_pitch_mm=0.02)
+
+
+@pytest.mark.parametrize("relief", [1.0, 2.0], ids=["travel", "catalog-max"])
+@pytest.mark.parametrize("fid", [FAST, BAL, ELASTIC, PYRAMID], ids=["twoscale-0.5", "twoscale-1.0", "elastic",
+                                                                     "pyramid"])
+def test_relief_near_the_gels_limit(fid, relief):
+    """A corduroy whose wales stand as deep as the pad's travel (1 mm) or twice it (the catalog's
+    2 mm), on its thickest cloth, pressed at the motion range's top force: finite, and the gel
+    surface never deeper than its travel."""
+    fab = fabric_with(64, relief_mm=relief, thickness_mm=6.0)
+    im = press_fabric(fab, TEX, fid, 4.0)
+    check_imprint(im, TEX)
+    assert im.contact_mask.any()
+    check_budget(texture_budget(fab, 4.0, TEX, fid, codec=False))
+
+
+def _force_edges():
+    f = load_motion_ranges().force
+    return f.peak_force_n[0] * f.slip_force_scale[0], f.peak_force_n[1]
+
+
+@pytest.mark.parametrize("fabric_id", [2, 50, 64], ids=["fine-weave", "coarse-knit", "pile"])
+def test_forces_at_the_motion_range_edges(fabric_id):
+    """Whole sequences at the lightest force a motion can have (a slip at half the least press,
+    0.5 N) and the heaviest press (4 N): finite labels and frames, the gel within its travel, a
+    contact in every pressing frame, and the heavier press deeper and wider."""
+    fabric = load_catalog()[fabric_id]
+    labels = []
+    for action, force in zip(("slip", "press"), _force_edges()):
+        m = base_motion(action, peak_force_n=force)
+        out = SequenceOutput({}, {})
+        frames = list(render_sequence(fabric, m, TEX, BAL, seed=2, out=out))
+        assert all(f.dtype == np.uint8 and f.shape == (120, 160, 3) for f in frames)
+        lab = out.labels
+        pressing = lab["in_contact"] & (lab["normal_force_n"] > 0)
+        assert pressing.any() and (lab["contact_area_mm2"][pressing] > 0).all()
+        for k, v in lab.items():
+            if k in ("contact_centroid_px", "contact_bbox_px"):
+                assert np.isfinite(v[pressing]).all(), k
+            elif v.dtype != bool:
+                assert np.isfinite(v).all(), k
+        # the two-scale approach adds the crowns' sink below the macro solve's (bounded by the travel)
+        assert lab["indentation_mm"].max() <= TEX.gel.max_indentation_mm * 1.1
+        labels.append(lab)
+    light, heavy = labels
+    assert heavy["normal_force_n"].max() > 2 * light["normal_force_n"].max()
+    assert heavy["contact_area_mm2"].max() > light["contact_area_mm2"].max()
+    assert heavy["indentation_mm"].max() > light["indentation_mm"].max()
+
+
+def test_forces_outside_the_motion_range_are_a_clear_error():
+    with pytest.raises(GelsimError, match="peak_force_n"):
+        build(ForceRanges, {"peak_force_n": [0.01, 4.0]}, where="motions.force")
+    with pytest.raises(GelsimError, match="peak_force_n"):
+        build(ForceRanges, {"peak_force_n": [1.0, 60.0]}, where="motions.force")
 
 
 # ------------------------------------------------------------------------------ whole sequence

@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 
 from gelsim import sequence
-from gelsim.contact import Surface, simulate
+from gelsim.contact import simulate
 from gelsim.errors import GelsimError
 from gelsim.fabrics import load_catalog
 from gelsim.fidelity import get_fidelity
 from gelsim.motion import sample_motion
+from gelsim.scene import FabricObject, physics_surface
 from gelsim.sensor import load_profile
-from gelsim.sequence import NEGLIGIBLE_PX, PHYSICS_MM_PER_PX, SequenceOutput, render_sequence
+from gelsim.sequence import NEGLIGIBLE_PX, SequenceOutput, render_sequence
 
 T, PRE = 8, 3
 
@@ -33,7 +34,7 @@ def setup():
     motions, contacts = {}, {}
     for action in ("press", "twist"):
         m = sample_motion(action, 7, frames=(T, T), precontact=(PRE, PRE))
-        surf = Surface.from_fabric(fabric, m, profile, mm_per_px=PHYSICS_MM_PER_PX, seed=7)
+        surf = physics_surface(FabricObject(fabric), m, profile, seed=7)
         motions[action] = m
         contacts[action] = simulate(m, surf, profile, fid)
     return profile, fid, fabric, motions, contacts
