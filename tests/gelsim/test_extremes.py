@@ -528,7 +528,7 @@ VALID = {
     ImageSpec: dict(width_px=320, height_px=240, mm_per_px=0.05),
     MarkerSpec: {},
     Fidelity: dict(name="x", physics_dt_s=0.001, imprint_model="pyramid", imprint_scale=1.0,
-                   marker_model="gaussian", render_backend="fast", supersample=1),
+                   marker_model="gaussian", render_backend="fast", supersample=1, macro_cells=64),
 }
 RANGED = [r for cls in VALID for r in _ranged_fields(cls)]
 
