@@ -32,7 +32,6 @@ import time
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from gelsim import bench  # noqa: E402
 from gelsim.atomic import atomic_write_json, atomic_write_text  # noqa: E402

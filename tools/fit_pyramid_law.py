@@ -56,7 +56,7 @@ def fit_pyramid_law(profile=None, resolution_px: int = 480) -> dict[str, Any]:
     (the whole pad on a plane and on gentle domes, at a quarter of the resolution: smooth
     shapes); the coarsest blur from the depth outside a sphere's contact. A cylinder on its
     side is reported as a check that took no part in the fit. A few minutes;
-    ``benchmarks/bench_gel.py --fit`` writes the result to LAW_FILE.
+    ``tools/fit_pyramid_law.py --write`` writes the result to LAW_FILE.
     """
     from scipy.optimize import least_squares
 
