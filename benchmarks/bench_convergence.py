@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -34,7 +33,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from gelsim import bench  # noqa: E402
-from gelsim.atomic import atomic_write_json, atomic_write_text  # noqa: E402
+from gelsim.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text  # noqa: E402
 from gelsim.dataset import parse_resolution  # noqa: E402
 
 HIRES_KNOBS = ("imprint_scale", "macro_cells", "imprint_model", "marker_model")
@@ -46,9 +45,7 @@ def _split(text: str) -> tuple[str, ...]:
 
 def _copy(src: Path, dst: str) -> None:
     if dst:
-        tmp = f"{dst}.partial-{os.getpid()}.png"
-        shutil.copyfile(src, tmp)
-        os.replace(tmp, dst)
+        atomic_write_bytes(dst, src.read_bytes())
 
 
 def main(argv=None) -> int:

@@ -59,7 +59,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from .atomic import atomic_write_bytes, atomic_write_npz, atomic_write_text
+from .atomic import atomic_write_json, atomic_write_npz, atomic_write_text, write_figure
 from .contact import ContactFrames, simulate
 from .errors import GelsimError
 from .runtime import configure_worker
@@ -1038,16 +1038,7 @@ def pareto_plot(doc: dict, path: Path) -> None:
     fig.suptitle(f"gelsim fidelity levels against `{runs[0]['settings']['reference']}`, {len(scenes)} scenes "
                  "(errors: lower left is better)")
     fig.tight_layout()
-    _save_fig(fig, path)
-    plt.close(fig)
-
-
-def _save_fig(fig, path: Path) -> None:
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, dpi=100, format="png")
-    atomic_write_bytes(path, buf.getvalue())
+    write_figure(path, fig, dpi=100)
 
 
 def write_reports(doc: dict, out_dir: str | Path) -> dict[str, Path]:
@@ -1061,18 +1052,10 @@ def _write_report(result: dict, out_dir: str | Path, stem: str, plot_stem: str, 
     if out.exists() and not out.is_dir():
         raise GelsimError(f"--out {out} is a file; give a directory")
     paths = {"json": out / f"{stem}.json", "markdown": out / f"{stem}.md", "plot": out / f"{plot_stem}.png"}
-    atomic_write_text(paths["json"], json.dumps(result, indent=1, default=_json_default) + "\n")
+    atomic_write_json(paths["json"], result)
     atomic_write_text(paths["markdown"], markdown(result))
     plot(result, paths["plot"])
     return paths
-
-
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
 
 
 # --------------------------------------------------------------------------------------
@@ -1253,8 +1236,7 @@ def convergence_plot(result: dict, path: Path) -> None:
     for ax in axes.ravel()[n:]:
         ax.axis("off")
     fig.tight_layout()
-    _save_fig(fig, path)
-    plt.close(fig)
+    write_figure(path, fig, dpi=100)
 
 
 def write_convergence(result: dict, out_dir: str | Path) -> dict[str, Path]:
@@ -1408,5 +1390,4 @@ def pitch_plot(studies: list[dict], path: Path) -> None:
     axes[1].legend(fontsize=7)
     fig.suptitle("Fine weaves: texture kept against the imprint grid's pixels per period")
     fig.tight_layout()
-    _save_fig(fig, path)
-    plt.close(fig)
+    write_figure(path, fig, dpi=100)

@@ -14,6 +14,7 @@ import os
 import sys
 
 from .. import __version__
+from ..atomic import json_default
 from ..errors import GelsimError
 
 # Command modules, in the order they appear in --help.
@@ -35,20 +36,8 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescript
 
 def print_json(obj) -> None:
     """Write one JSON document to stdout (the ``--json`` contract of every command)."""
-    json.dump(obj, sys.stdout, indent=2, default=_json_default)
+    json.dump(obj, sys.stdout, indent=2, default=json_default)
     sys.stdout.write("\n")
-
-
-def _json_default(o):
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if hasattr(o, "__fspath__"):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def build_parser() -> argparse.ArgumentParser:
