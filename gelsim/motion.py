@@ -24,7 +24,7 @@ from typing import Literal
 
 import numpy as np
 
-from .errors import GelsimError
+from .errors import GelsimError, check_choice
 from .params import ASSETS_DIR, build, load_toml, param
 from .schema import ACTIONS  # noqa: F401  (the dataset's action names; gelsim.motion.ACTIONS for callers)
 
@@ -184,8 +184,7 @@ class Motion:
     end_fraction: float = 0.05         # slip/twist: still at the end
 
     def __post_init__(self) -> None:
-        if self.action not in ACTIONS:
-            raise GelsimError(f"unknown action {self.action!r}; choose one of {', '.join(ACTIONS)}")
+        check_choice("action", self.action, ACTIONS)
         if not 0 <= self.precontact_frames < self.num_frames:
             raise GelsimError(f"precontact_frames {self.precontact_frames} must be in [0, num_frames="
                               f"{self.num_frames}); lower it")
