@@ -34,6 +34,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from gelsim import bench  # noqa: E402
 from gelsim.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text  # noqa: E402
+from gelsim.cli import run_script  # noqa: E402
 from gelsim.dataset import parse_resolution  # noqa: E402
 
 HIRES_KNOBS = ("imprint_scale", "macro_cells", "imprint_model", "marker_model")
@@ -114,4 +115,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)

@@ -20,10 +20,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import statistics
-import sys
 import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -31,6 +29,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from gelsim import indenters  # noqa: E402
+from gelsim.cli import print_json, run_script  # noqa: E402
 from gelsim.runtime import configure_worker  # noqa: E402
 from gelsim.fabrics import load_catalog  # noqa: E402
 from gelsim.fidelity import get_fidelity  # noqa: E402
@@ -78,7 +77,7 @@ def agreement_table(as_json: bool) -> int:
                           f"slope {a['slope']:.2f}  contact {a['contact']:.2f} (ref {row['contact_ref']:.3f})  "
                           f"approach {a['approach']:.2f} (ref {ref.indentation_mm:.4f} mm)", flush=True)
     if as_json:
-        print(json.dumps({"patch_px": list(ag.PATCH.shape[::-1]), "force_n": ag.FORCE_N, "rows": rows}, indent=2))
+        print_json({"patch_px": list(ag.PATCH.shape[::-1]), "force_n": ag.FORCE_N, "rows": rows})
     return 0
 
 
@@ -145,11 +144,11 @@ def main(argv=None) -> int:
                 print(f"markers {model:18} {cname:17} {r['wall_ms']:9.2f} ms wall {r['cpu_ms']:9.2f} ms cpu", flush=True)
     results["load_avg_end"] = os.getloadavg()[0]
     if args.json:
-        print(json.dumps(results, indent=2))
+        print_json(results)
     else:
         print(f"load average {results['load_avg']:.2f} -> {results['load_avg_end']:.2f} (2 cores shared)")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)

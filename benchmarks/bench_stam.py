@@ -11,13 +11,13 @@ machine and its load; the load average is reported beside them.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
 
 import torch
 
+from gelsim.cli import print_json, run_script
 from stam.models import MODEL_NAMES, build
 
 
@@ -88,10 +88,10 @@ def main() -> None:
            "threads": torch.get_num_threads(), "load_average": os.getloadavg(), "width": args.width,
            "image_size_px": args.image_size, "hidden": args.hidden, "batch": args.batch, "results": rows}
     if args.json:
-        print(json.dumps(res, indent=2))
+        print_json(res)
     else:
         print(f"device {res['device']}, {res['threads']} threads, load average {res['load_average']}")
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

@@ -12,12 +12,12 @@ import argparse
 import dataclasses
 import json
 import math
-import sys
 from typing import Any
 
 import numpy as np
 
 from gelsim.atomic import atomic_write_text
+from gelsim.cli import run_script
 from gelsim.fidelity import get_fidelity
 from gelsim.gel import press
 from gelsim.gel.layer import disk_layer_factor, effective_modulus_mpa
@@ -185,4 +185,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)
