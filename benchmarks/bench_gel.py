@@ -29,7 +29,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from gelsim import indenters  # noqa: E402
-from gelsim.cli import print_json, run_script  # noqa: E402
+from gelsim.cli import print_json, print_result, run_script  # noqa: E402
 from gelsim.runtime import configure_worker  # noqa: E402
 from gelsim.fabrics import load_catalog  # noqa: E402
 from gelsim.fidelity import get_fidelity  # noqa: E402
@@ -143,11 +143,8 @@ def main(argv=None) -> int:
             if not args.json:
                 print(f"markers {model:18} {cname:17} {r['wall_ms']:9.2f} ms wall {r['cpu_ms']:9.2f} ms cpu", flush=True)
     results["load_avg_end"] = os.getloadavg()[0]
-    if args.json:
-        print_json(results)
-    else:
-        print(f"load average {results['load_avg']:.2f} -> {results['load_avg_end']:.2f} (2 cores shared)")
-    return 0
+    return print_result(args.json, results,
+                        f"load average {results['load_avg']:.2f} -> {results['load_avg_end']:.2f} (2 cores shared)")
 
 
 if __name__ == "__main__":
