@@ -663,12 +663,9 @@ class RunCache:
                           imp_mask=np.stack([run.imprints[i][1] for i in order]))
         if tex is not None:
             arrays.update(tex_frames=tex.frames, tex_gel=tex.gel_rms, tex_img=tex.img_rms)
-            if tex.img_fast_rms is not None:
-                arrays["tex_img_fast"] = tex.img_fast_rms
-            if tex.region is not None:
-                arrays["tex_region"] = tex.region
-            if tex.patch is not None:
-                arrays["tex_patch"] = tex.patch
+            for name, value in (("tex_img_fast", tex.img_fast_rms), ("tex_region", tex.region), ("tex_patch", tex.patch)):
+                if value is not None:
+                    arrays[name] = value
         self.save(key, arrays, {"seconds": run.seconds, "cpu_s": run.cpu_s, "wall_s": run.wall_s,
                                 "contact_scalars": {"first_contact_frame": int(run.contact.first_contact_frame),
                                                     "contact_time_s": float(run.contact.contact_time_s)}})
