@@ -64,6 +64,7 @@ from .contact import ContactFrames, simulate
 from .errors import GelsimError
 from .runtime import configure_worker
 from .fidelity import Fidelity, fidelity_levels, get_fidelity
+from .metrics import psnr, ssim_map
 from .motion import ACTIONS, Motion, sample_motion
 from .sensor import SensorProfile, load_profile
 from .sequence import SequenceOutput, render_sequence
@@ -107,10 +108,6 @@ SCENE_SEED_STRIDE = 10_000
 SPHERE_DIAMETER_MM = 10.0
 SPHERE_FORCE_N = 0.5
 SPHERE_FRICTION = 0.6  # assumed: a smooth plastic ball on silicone
-# SSIM constants of Wang et al. (2004) for 8-bit images.
-_SSIM_C1 = (0.01 * 255) ** 2
-_SSIM_C2 = (0.03 * 255) ** 2
-_SSIM_SIGMA = 1.5
 
 
 def default_frames(resolution: tuple[int, int]) -> tuple[int, int]:
@@ -123,27 +120,15 @@ def default_frames(resolution: tuple[int, int]) -> tuple[int, int]:
 # Image metrics
 # --------------------------------------------------------------------------------------
 def ssim(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean SSIM of two uint8 ``(H, W[, C])`` images (Gaussian window, per channel), 1 = identical."""
-    if a.shape != b.shape:
-        raise GelsimError(f"images differ in shape {a.shape} vs {b.shape}; compare frames of one size")
-    x = a.astype(np.float64)
-    y = b.astype(np.float64)
-
-    def blur(img):
-        return cv2.GaussianBlur(img, (11, 11), _SSIM_SIGMA, borderType=cv2.BORDER_REFLECT)
-
-    mx, my = blur(x), blur(y)
-    sxx = blur(x * x) - mx * mx
-    syy = blur(y * y) - my * my
-    sxy = blur(x * y) - mx * my
-    num = (2 * mx * my + _SSIM_C1) * (2 * sxy + _SSIM_C2)
-    den = (mx * mx + my * my + _SSIM_C1) * (sxx + syy + _SSIM_C2)
-    return float(np.mean(num / den))
+    """The bench's SSIM of two 8-bit ``(H, W[, C])`` images: :func:`gelsim.metrics.ssim_map` averaged over
+    every pixel, border included (as the bench has always reported it), 1 = identical."""
+    return float(ssim_map(a, b).mean())
 
 
 def psnr_from_mse(mse: float) -> float | None:
-    """PSNR in dB for 8-bit images; None for identical images (infinite)."""
-    return None if mse <= 0 else 10.0 * math.log10(255.0 ** 2 / mse)
+    """:func:`gelsim.metrics.psnr` for JSON: None for identical images (infinite)."""
+    p = psnr(mse)
+    return None if math.isinf(p) else p
 
 
 def _r(v, n: int):
