@@ -159,7 +159,7 @@ def write_law(values: dict[str, Any], path=LAW_FILE) -> None:
                    "spheres and broad contacts on the profile's gel, blur on the depth outside a sphere's contact; "
                    f"max |log F error| {values.get('force_resid_max')}, "
                    f"rms log contact-radius error {values.get('contact_radius_rms_log')}")
-    header = ("Force law and smoothing of the pyramid imprint model (gelsim/gel.py), fitted to the\n"
+    header = ("Force law and smoothing of the pyramid imprint model (gelsim/gel/pyramid.py), fitted to the\n"
               "elastic model. Regenerate: .venv/bin/python tools/fit_pyramid_law.py --write\n"
               "contact_fraction: 0.5 would be exact for Hertz (penetration d/2 at r = a); the fit matches the\n"
               "elastic layer's contact radii, which exceed Hertz's as the contact grows against the thickness.\n"
