@@ -15,7 +15,7 @@ GL_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libosmesa6
 STAMP       := $(VENV)/.gelsim-installed
 DEMO_OUT    ?= out/demo
 
-.PHONY: install demo test test-slow bench gl-libs clean-venv
+.PHONY: install demo test test-slow bench gl-libs clean-venv gym
 
 install: $(STAMP)
 
@@ -45,6 +45,10 @@ gl-libs:
 	    echo "  sudo apt-get install -y $(GL_PACKAGES)"; \
 	  fi; \
 	fi
+
+# Optional: Gymnasium, for gelsim.envs (GraspEnv); without it those tests skip.
+gym: $(STAMP)
+	$(PY) -m pip install -q -e ".[gym]"
 
 demo: $(STAMP)
 	$(VENV)/bin/gelsim generate --preset quick --out $(DEMO_OUT)
