@@ -145,3 +145,25 @@ def scripted_controls(t_s: float, grip_n: float = 4.0, lift_m: float = 0.04) -> 
     z = APPROACH_M * (1.0 - ramp(0.0, 0.5)) + lift_m * ramp(0.9, 1.5)
     grip = -1.0 + (grip_n + 1.0) * ramp(0.5, 0.9)
     return z, grip
+
+
+def press_scene(force_n: float, diameter_mm: float, *, profile: str = "gelsight-mini",
+                offset_mm: tuple[float, float] = (0.0, 0.0), settle_steps: int = 2500):
+    """A test rig: a pad ``pad`` facing +z at the origin and a sphere of ``diameter_mm`` on a slide
+    joint pushed into it with ``force_n`` N (no gravity), ``offset_mm`` off the pad's axis (pad
+    frame x, y), stepped until it settles. Returns ``(model, data)``."""
+    spec = mujoco.MjSpec()
+    spec.option.gravity = [0, 0, 0]
+    spec.worldbody.add_body(name="base")
+    attach(spec, "base", "pad", facing=(0, 0, 1), x_axis=(1, 0, 0), profile=profile)
+    r = diameter_mm / 2 * 1e-3
+    ball = spec.worldbody.add_body(name="ball", pos=[offset_mm[0] * 1e-3, offset_mm[1] * 1e-3, r + 2e-4])
+    ball.add_joint(name="z", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0, 0, 1], damping=2.0)
+    ball.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[r], mass=0.01)
+    spec.add_actuator(name="push", target="z", trntype=mujoco.mjtTrn.mjTRN_JOINT, gainprm=[1] + [0] * 9)
+    m = spec.compile()
+    d = mujoco.MjData(m)
+    d.ctrl[0] = -force_n
+    for _ in range(settle_steps):
+        mujoco.mj_step(m, d)
+    return m, d

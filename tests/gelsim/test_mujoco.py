@@ -11,34 +11,11 @@ from gelsim import frame
 from gelsim.contact import gel_stiffness
 from gelsim.errors import GelsimError
 from gelsim.mujoco import GelSightSensor, attach
+from gelsim.mujoco.grasp import press_scene
 from gelsim.scene import Sphere
 from gelsim.stats import fit_marker_motion
 
 MM = 1e-3
-
-
-def _settle(m, d, steps=2500):
-    for _ in range(steps):
-        mujoco.mj_step(m, d)
-
-
-def sphere_press(force_n: float, diameter_mm: float, profile: str, offset_mm=(0.0, 0.0)):
-    """A pad facing +z at the origin and a sphere on a slide joint pushed into it with ``force_n``
-    (no gravity): the settled model and data."""
-    spec = mujoco.MjSpec()
-    spec.option.gravity = [0, 0, 0]
-    spec.worldbody.add_body(name="base")
-    attach(spec, "base", "pad", facing=(0, 0, 1), x_axis=(1, 0, 0), profile=profile)
-    r = diameter_mm / 2 * MM
-    ball = spec.worldbody.add_body(name="ball", pos=[offset_mm[0] * MM, offset_mm[1] * MM, r + 0.2 * MM])
-    ball.add_joint(name="z", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0, 0, 1], damping=2.0)
-    ball.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[r], mass=0.01)
-    spec.add_actuator(name="push", target="z", trntype=mujoco.mjtTrn.mjTRN_JOINT, gainprm=[1] + [0] * 9)
-    m = spec.compile()
-    d = mujoco.MjData(m)
-    d.ctrl[0] = -force_n
-    _settle(m, d)
-    return m, d
 
 
 def twist_scene(profile: str):
@@ -64,7 +41,7 @@ def twist_scene(profile: str):
 
 @pytest.fixture(scope="module")
 def pressed_ball():
-    return sphere_press(1.0, 8.0, "vitac")
+    return press_scene(1.0, 8.0, profile="vitac")
 
 
 def test_sphere_press_matches_gelsim_press(pressed_ball):
@@ -92,7 +69,7 @@ def test_sphere_press_matches_gelsim_press(pressed_ball):
 
 def test_offset_ball_lands_at_its_place_in_the_image():
     """Image columns follow the pad's +x, rows its +y: a ball 3 mm along +x and 2 mm along +y."""
-    m, d = sphere_press(0.5, 6.0, "gelsight-mini", offset_mm=(3.0, 2.0))
+    m, d = press_scene(0.5, 6.0, profile="gelsight-mini", offset_mm=(3.0, 2.0))
     s = GelSightSensor(m, d, "pad", profile="gelsight-mini", resolution=(320, 240), noise=False)
     f = s.render()
     ys, xs = np.nonzero(f.contact_mask)
