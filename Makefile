@@ -16,7 +16,7 @@ STAMP       := $(VENV)/.gelsim-installed
 PYOPENGL_SPEC := PyOpenGL==3.1.10
 DEMO_OUT    ?= out/demo
 
-.PHONY: install demo test test-slow bench gl-libs clean-venv gym
+.PHONY: install demo test test-slow test-extras bench gl-libs clean-venv gym
 
 install: $(STAMP)
 
@@ -62,6 +62,10 @@ test: $(STAMP)
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m "slow or not slow"
+
+# The tests of the optional engines, after installing them (Gymnasium: gelsim.envs).
+test-extras: gym
+	$(PY) -m pytest -q -rs tests/gelsim/test_envs.py
 
 bench: $(STAMP)
 	@for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
