@@ -13,9 +13,10 @@ TORCH_SPEC  ?= torch==2.13.0
 TORCH_INDEX ?=
 GL_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libosmesa6
 STAMP       := $(VENV)/.gelsim-installed
+PYOPENGL_SPEC := PyOpenGL==3.1.10
 DEMO_OUT    ?= out/demo
 
-.PHONY: install demo test test-slow bench gl-libs clean-venv
+.PHONY: install demo test test-slow test-extras bench gl-libs clean-venv gym
 
 install: $(STAMP)
 
@@ -27,7 +28,7 @@ $(STAMP): pyproject.toml Makefile
 	$(PY) -m pip install -q -e ".[test]"
 	# pyrender 0.1.45 pins PyOpenGL 3.1.0, which cannot make an EGL/OSMesa context on
 	# current Mesa; 3.1.10 works and is API compatible (see gelsim/compat.py).
-	$(PY) -m pip install -q --no-deps "PyOpenGL==3.1.10"
+	$(PY) -m pip install -q --no-deps "$(PYOPENGL_SPEC)"
 	@touch $(STAMP)
 
 # Headless GL for the pyrender reference backend. Installed when we are root and
@@ -46,6 +47,12 @@ gl-libs:
 	  fi; \
 	fi
 
+# Optional: Gymnasium, for gelsim.envs (GraspEnv); without it those tests skip. Reinstalling the
+# package lets pip put pyrender's PyOpenGL pin back, so the working PyOpenGL is restored after it.
+gym: $(STAMP)
+	$(PY) -m pip install -q -e ".[gym]"
+	$(PY) -m pip install -q --no-deps "$(PYOPENGL_SPEC)"
+
 demo: $(STAMP)
 	$(VENV)/bin/gelsim generate --preset quick --out $(DEMO_OUT)
 	@echo "demo dataset: $(DEMO_OUT) (manifest: $(DEMO_OUT)/manifest.json, previews: $(DEMO_OUT)/previews/)"
@@ -55,6 +62,10 @@ test: $(STAMP)
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m "slow or not slow"
+
+# The tests of the optional engines, after installing them (Gymnasium: gelsim.envs).
+test-extras: gym
+	$(PY) -m pytest -q -rs tests/gelsim/test_envs.py
 
 bench: $(STAMP)
 	@for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done

@@ -9,15 +9,14 @@ the simulated physics steps, and the machine load (timings on a shared machine a
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import statistics
-import sys
 import time
 
 import numpy as np
 
+from gelsim.cli import print_json, run_script
 from gelsim.contact import Surface, simulate
 from gelsim.fidelity import fidelity_levels
 from gelsim.motion import ACTIONS, sample_motion
@@ -62,8 +61,7 @@ def main(argv=None) -> int:
                          "mean_steps": statistics.mean(steps), "repeats": args.repeats})
     result = {"benchmark": "contact", "load_avg_1min": os.getloadavg()[0], "cpus": os.cpu_count(), "rows": rows}
     if args.json:
-        json.dump(result, sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        print_json(result)
     else:
         print(f"load average {result['load_avg_1min']:.2f} on {result['cpus']} CPUs")
         print(f"{'level':10s} {'action':6s} {'dt s':>8s} {'median ms':>10s} {'max ms':>8s} {'steps':>7s}")
@@ -74,4 +72,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)

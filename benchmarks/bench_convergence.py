@@ -26,16 +26,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import sys
 import time
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from gelsim import bench  # noqa: E402
-from gelsim.atomic import atomic_write_json, atomic_write_text  # noqa: E402
+from gelsim.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text  # noqa: E402
+from gelsim.cli import run_script  # noqa: E402
 from gelsim.dataset import parse_resolution  # noqa: E402
 
 HIRES_KNOBS = ("imprint_scale", "macro_cells", "imprint_model", "marker_model")
@@ -47,9 +46,7 @@ def _split(text: str) -> tuple[str, ...]:
 
 def _copy(src: Path, dst: str) -> None:
     if dst:
-        tmp = f"{dst}.partial-{os.getpid()}.png"
-        shutil.copyfile(src, tmp)
-        os.replace(tmp, dst)
+        atomic_write_bytes(dst, src.read_bytes())
 
 
 def main(argv=None) -> int:
@@ -118,4 +115,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)

@@ -18,7 +18,6 @@ one case instead and reports the slowest ones.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -26,6 +25,7 @@ import tracemalloc
 
 import cv2
 
+from gelsim.cli import print_json, run_script
 from gelsim.fabrics import FAMILY_KEYS, heightfield, load_catalog
 
 CASES = {
@@ -79,9 +79,7 @@ def main() -> int:
                           "cpu_ms": round(cpu, 1), "peak_mb": round(mb, 1)})
         times.sort(key=lambda r: -r["cpu_ms"])
         if args.json:
-            json.dump({"case": CASES[args.all], "loadavg_1min": round(os.getloadavg()[0], 2), "rows": times},
-                      sys.stdout, indent=2)
-            sys.stdout.write("\n")
+            print_json({"case": CASES[args.all], "loadavg_1min": round(os.getloadavg()[0], 2), "rows": times})
             return 0
         cpus = sorted(r["cpu_ms"] for r in times)
         print(f"{args.all}: median {cpus[len(cpus) // 2]:.0f} ms CPU, max {cpus[-1]:.0f} ms CPU over {len(cpus)} fabrics")
@@ -106,8 +104,7 @@ def main() -> int:
     meta = {"cases": {c: CASES[c] for c in cases}, "repeat": args.repeat, "threads": 1,
             "loadavg_1min": round(load[0], 2), "cpus": os.cpu_count()}
     if args.json:
-        json.dump({"meta": meta, "rows": rows}, sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        print_json({"meta": meta, "rows": rows})
         return 0
     head = ["family", "fabric"] + [f"{c} ms (CPU)" for c in cases] + [f"{c} MB" for c in cases]
     print("| " + " | ".join(head) + " |")
@@ -124,4 +121,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)

@@ -12,33 +12,30 @@ runs, wall-clock and CPU time (CPU time is steadier on a shared machine). Also c
 over the whole pad at 2 N on their support, as gelsim.sequence presses them (plain weave, knit,
 leather; not the elastic reference: it takes 10-60 s there).
 ``--agreement`` compares the fast and balanced models with the elastic reference on seven catalog
-fabrics (the cases of tests/gelsim/test_gel_fabrics.py: texture correlation, slope, contact and
-approach ratios), rigid and on their support; a few minutes.
+fabrics (gelsim.gel.agreement, the cases of tests/gelsim/test_gel_fabrics.py: texture correlation,
+slope, contact and approach ratios), rigid and on their support; a few minutes.
 The pyramid's force law is refitted by tools/fit_pyramid_law.py.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import statistics
-import sys
 import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-
 from gelsim import indenters  # noqa: E402
+from gelsim.cli import print_json, print_result, run_script  # noqa: E402
 from gelsim.runtime import configure_worker  # noqa: E402
-from gelsim.fabrics import heightfield, load_catalog  # noqa: E402
+from gelsim.fabrics import load_catalog  # noqa: E402
 from gelsim.fidelity import get_fidelity  # noqa: E402
 from gelsim.gel import press  # noqa: E402
 from gelsim.markers import displace  # noqa: E402
+from gelsim.scene import FabricObject, field_heights  # noqa: E402
 from gelsim.sensor import load_profile  # noqa: E402
 
 
@@ -58,30 +55,21 @@ def fabric_like(profile, seed: int = 0) -> np.ndarray:
     return (weave + dome + 0.005 * rng.standard_normal((h, w))).astype(np.float32)
 
 
-def catalog_patch(fab, profile, seed: int = 0) -> np.ndarray:
-    """The fabric's heightfield over the whole field of view, mm (as `gelsim render --fabric`)."""
-    h, w = profile.shape
-    mm = profile.image.mm_per_px
-    return heightfield(fab, x0_mm=-(w - 1) / 2 * mm, y0_mm=-(h - 1) / 2 * mm, width_px=w, height_px=h,
-                       mm_per_px=mm, seed=seed)
-
-
 def agreement_table(as_json: bool) -> int:
     """Print the agreement of the fast and balanced imprints with the elastic reference."""
-    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests", "gelsim"))
-    import test_gel_fabrics as tf
+    from gelsim.gel import agreement as ag
 
     rows = []
     for supported in (False, True):
-        for name in tf.FABRICS:
+        for name in ag.FABRICS:
             t0 = time.perf_counter()
-            ref = tf.imprint(name, supported, "elastic")
+            ref = ag.imprint(name, supported, "elastic")
             t_ref = time.perf_counter() - t0
-            for level in tf.LEVELS:
-                a = tf.agreement(tf.imprint(name, supported, level), ref)
-                row = {"fabric": name, "id": tf.FABRICS[name], "support": supported, "level": level,
+            for level in ag.LEVELS:
+                a = ag.agreement(ag.imprint(name, supported, level), ref)
+                row = {"fabric": name, "id": ag.FABRICS[name], "support": supported, "level": level,
                        **{k: round(v, 3) for k, v in a.items()},
-                       "contact_ref": round(float(tf.inner(ref.contact_mask).mean()), 3),
+                       "contact_ref": round(float(ag.inner(ref.contact_mask).mean()), 3),
                        "approach_ref_mm": round(ref.indentation_mm, 4), "elastic_s": round(t_ref, 1)}
                 rows.append(row)
                 if not as_json:
@@ -89,7 +77,7 @@ def agreement_table(as_json: bool) -> int:
                           f"slope {a['slope']:.2f}  contact {a['contact']:.2f} (ref {row['contact_ref']:.3f})  "
                           f"approach {a['approach']:.2f} (ref {ref.indentation_mm:.4f} mm)", flush=True)
     if as_json:
-        print(json.dumps({"patch_px": list(tf.PATCH.shape[::-1]), "force_n": tf.FORCE_N, "rows": rows}, indent=2))
+        print_json({"patch_px": list(ag.PATCH.shape[::-1]), "force_n": ag.FORCE_N, "rows": rows})
     return 0
 
 
@@ -122,7 +110,7 @@ def main(argv=None) -> int:
              "fabric_supported": (fabric, 1.0, poplin.support(), FABRIC_LIKE_TEXTURE_MM)}
     for fid in (1, 47, 86):
         fab = load_catalog()[fid]
-        cases[f"fabric{fid}_pad"] = (catalog_patch(fab, prof), 2.0, fab.support(), fab.texture_mm)
+        cases[f"fabric{fid}_pad"] = (field_heights(FabricObject(fab), prof), 2.0, fab.support(), fab.texture_mm)
     bal = get_fidelity("balanced")
     levels = {"twoscale_fast": get_fidelity("fast"), "twoscale_balanced": bal,
               "pyramid_balanced": dataclasses.replace(bal, imprint_model="pyramid"),
@@ -155,12 +143,9 @@ def main(argv=None) -> int:
             if not args.json:
                 print(f"markers {model:18} {cname:17} {r['wall_ms']:9.2f} ms wall {r['cpu_ms']:9.2f} ms cpu", flush=True)
     results["load_avg_end"] = os.getloadavg()[0]
-    if args.json:
-        print(json.dumps(results, indent=2))
-    else:
-        print(f"load average {results['load_avg']:.2f} -> {results['load_avg_end']:.2f} (2 cores shared)")
-    return 0
+    return print_result(args.json, results,
+                        f"load average {results['load_avg']:.2f} -> {results['load_avg_end']:.2f} (2 cores shared)")
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)

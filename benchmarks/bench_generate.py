@@ -12,15 +12,14 @@ worker adds about the same again).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import resource
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
 
+from gelsim.cli import print_json, run_script
 from gelsim.dataset import GenerateConfig, generate, plan, summarize_timings
 
 
@@ -70,7 +69,7 @@ def main() -> int:
         "load_avg": os.getloadavg()[0],
     }
     if args.json:
-        print(json.dumps(result, indent=2))
+        print_json(result)
     else:
         print(f"sample: {len(manifest['sequences'])} sequences, {frames} frames, fidelity {args.fidelity}")
         print(f"one worker: {ms:.1f} ms per frame end to end ({frames / wall:.1f} frames/s), peak RSS {peak_mb:.0f} MB")
@@ -85,4 +84,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)

@@ -16,6 +16,7 @@ import json
 import sys
 import time
 
+from gelsim.cli import run_script
 from gelsim.fidelity import get_fidelity
 from gelsim.gel import johnson
 from gelsim.runtime import configure_worker
@@ -83,4 +84,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)

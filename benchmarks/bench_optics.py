@@ -17,10 +17,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import platform
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -30,6 +28,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")   # before numpy and OpenCV load t
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from gelsim.cli import print_json, run_script  # noqa: E402
 from gelsim.optics import Renderer, available_backends  # noqa: E402
 from gelsim.runtime import configure_worker  # noqa: E402
 from gelsim.sensor import load_profile  # noqa: E402
@@ -172,12 +171,11 @@ def main(argv=None) -> int:
     info = run(args.reps, args.gl_reps, tuple(args.backends.split(",")), args.profile,
                tuple(args.shadings.split(",")), args.fabric, args.force)
     if args.json:
-        json.dump(info, sys.stdout, indent=2)
-        print()
+        print_json(info)
     else:
         print(markdown(info))
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)

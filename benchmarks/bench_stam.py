@@ -11,13 +11,13 @@ machine and its load; the load average is reported beside them.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
 
 import torch
 
+from gelsim.cli import print_result, run_script
 from stam.models import MODEL_NAMES, build
 
 
@@ -54,7 +54,7 @@ def bench(name: str, n: int, args, device: torch.device, frozen: bool) -> float:
     return args.batch * args.steps / (time.perf_counter() - t0)
 
 
-def main() -> None:
+def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--width", type=float, default=0.5, help="AlexNet channel multiplier (default 0.5, cpu preset)")
     p.add_argument("--image-size", type=int, default=128, help="px (default 128, cpu preset; the paper: 224)")
@@ -87,11 +87,9 @@ def main() -> None:
     res = {"device": torch.cuda.get_device_name(0) if device.type == "cuda" else platform.processor() or "cpu",
            "threads": torch.get_num_threads(), "load_average": os.getloadavg(), "width": args.width,
            "image_size_px": args.image_size, "hidden": args.hidden, "batch": args.batch, "results": rows}
-    if args.json:
-        print(json.dumps(res, indent=2))
-    else:
-        print(f"device {res['device']}, {res['threads']} threads, load average {res['load_average']}")
+    return print_result(args.json, res, f"device {res['device']}, {res['threads']} threads, "
+                        f"load average {res['load_average']}")
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)

@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import sys
 
 import numpy as np
 
+from gelsim.cli import print_json, run_script
 from gelsim.optics import Renderer
 from gelsim.realism import ball_depth, load_datapack, resolve_datapack, small_slope_frame, small_slope_summary
 from gelsim.sensor import load_profile
@@ -55,8 +54,7 @@ def main() -> int:
         s = small_slope_summary(p, hi)
         rows.append({"slope_from": lo, "slope_to": None if np.isinf(hi) else hi, **s})
     if args.json:
-        json.dump({"profile": prof.name, "frames": args.frames, "bins": rows}, sys.stdout, indent=2)
-        print()
+        print_json({"profile": prof.name, "frames": args.frames, "bins": rows})
         return 0
     print(f"profile {prof.name}, {args.frames} frames; colour change vs slope (sim - real, per channel R/G/B)")
     print("| slope | pixels | RMS DN | RMS R / G / B | background alone | gain sim/real R / G / B | real gain DN per unit slope |")
@@ -71,4 +69,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)

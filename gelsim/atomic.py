@@ -7,7 +7,8 @@ behind (:func:`partial_path`; ``gelsim generate`` sweeps such leftovers on resum
 
 * :func:`atomic_open`: a binary file object for writers that stream (``np.save``, ``torch.save``,
   matplotlib's ``savefig``), renamed into place when the ``with`` block ends without error;
-* :func:`atomic_write_bytes`, ``_text``, ``_json``, ``_npz``: whole documents;
+* :func:`atomic_write_bytes`, ``_text``, ``_json``, ``_npz``: whole documents (:func:`json_default`:
+  how JSON writers here and ``gelsim.cli.print_json`` store numpy values and paths);
 * :func:`write_png`: the one PNG writer (8-bit grey or colour arrays, OpenCV's encoder);
 * :func:`write_figure`: a matplotlib figure as PNG, the figure closed afterwards.
 
@@ -86,9 +87,22 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     return atomic_write_bytes(path, text.encode("utf-8"))
 
 
+def json_default(o):
+    """``json.dump``'s ``default=``: numpy scalars as numbers, arrays as lists, paths as strings."""
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if hasattr(o, "__fspath__"):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
 def atomic_write_json(path: str | Path, obj: Any) -> Path:
-    """``obj`` as JSON, indented by one space, with a final newline."""
-    return atomic_write_bytes(path, (json.dumps(obj, indent=1, sort_keys=False) + "\n").encode())
+    """``obj`` as JSON, indented by one space, with a final newline (numpy values and paths as
+    :func:`json_default` stores them)."""
+    return atomic_write_bytes(path, (json.dumps(obj, indent=1, sort_keys=False, default=json_default)
+                                     + "\n").encode())
 
 
 def atomic_write_npz(path: str | Path, **arrays: np.ndarray) -> Path:

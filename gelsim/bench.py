@@ -59,11 +59,12 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from .atomic import atomic_write_bytes, atomic_write_npz, atomic_write_text
+from .atomic import atomic_write_json, atomic_write_npz, atomic_write_text, write_figure
 from .contact import ContactFrames, simulate
 from .errors import GelsimError
 from .runtime import configure_worker
 from .fidelity import Fidelity, fidelity_levels, get_fidelity
+from .metrics import psnr, ssim_map
 from .motion import ACTIONS, Motion, sample_motion
 from .sensor import SensorProfile, load_profile
 from .sequence import SequenceOutput, render_sequence
@@ -107,10 +108,6 @@ SCENE_SEED_STRIDE = 10_000
 SPHERE_DIAMETER_MM = 10.0
 SPHERE_FORCE_N = 0.5
 SPHERE_FRICTION = 0.6  # assumed: a smooth plastic ball on silicone
-# SSIM constants of Wang et al. (2004) for 8-bit images.
-_SSIM_C1 = (0.01 * 255) ** 2
-_SSIM_C2 = (0.03 * 255) ** 2
-_SSIM_SIGMA = 1.5
 
 
 def default_frames(resolution: tuple[int, int]) -> tuple[int, int]:
@@ -123,27 +120,15 @@ def default_frames(resolution: tuple[int, int]) -> tuple[int, int]:
 # Image metrics
 # --------------------------------------------------------------------------------------
 def ssim(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean SSIM of two uint8 ``(H, W[, C])`` images (Gaussian window, per channel), 1 = identical."""
-    if a.shape != b.shape:
-        raise GelsimError(f"images differ in shape {a.shape} vs {b.shape}; compare frames of one size")
-    x = a.astype(np.float64)
-    y = b.astype(np.float64)
-
-    def blur(img):
-        return cv2.GaussianBlur(img, (11, 11), _SSIM_SIGMA, borderType=cv2.BORDER_REFLECT)
-
-    mx, my = blur(x), blur(y)
-    sxx = blur(x * x) - mx * mx
-    syy = blur(y * y) - my * my
-    sxy = blur(x * y) - mx * my
-    num = (2 * mx * my + _SSIM_C1) * (2 * sxy + _SSIM_C2)
-    den = (mx * mx + my * my + _SSIM_C1) * (sxx + syy + _SSIM_C2)
-    return float(np.mean(num / den))
+    """The bench's SSIM of two 8-bit ``(H, W[, C])`` images: :func:`gelsim.metrics.ssim_map` averaged over
+    every pixel, border included (as the bench has always reported it), 1 = identical."""
+    return float(ssim_map(a, b).mean())
 
 
 def psnr_from_mse(mse: float) -> float | None:
-    """PSNR in dB for 8-bit images; None for identical images (infinite)."""
-    return None if mse <= 0 else 10.0 * math.log10(255.0 ** 2 / mse)
+    """:func:`gelsim.metrics.psnr` for JSON: None for identical images (infinite)."""
+    p = psnr(mse)
+    return None if math.isinf(p) else p
 
 
 def _r(v, n: int):
@@ -663,12 +648,9 @@ class RunCache:
                           imp_mask=np.stack([run.imprints[i][1] for i in order]))
         if tex is not None:
             arrays.update(tex_frames=tex.frames, tex_gel=tex.gel_rms, tex_img=tex.img_rms)
-            if tex.img_fast_rms is not None:
-                arrays["tex_img_fast"] = tex.img_fast_rms
-            if tex.region is not None:
-                arrays["tex_region"] = tex.region
-            if tex.patch is not None:
-                arrays["tex_patch"] = tex.patch
+            for name, value in (("tex_img_fast", tex.img_fast_rms), ("tex_region", tex.region), ("tex_patch", tex.patch)):
+                if value is not None:
+                    arrays[name] = value
         self.save(key, arrays, {"seconds": run.seconds, "cpu_s": run.cpu_s, "wall_s": run.wall_s,
                                 "contact_scalars": {"first_contact_frame": int(run.contact.first_contact_frame),
                                                     "contact_time_s": float(run.contact.contact_time_s)}})
@@ -1038,16 +1020,7 @@ def pareto_plot(doc: dict, path: Path) -> None:
     fig.suptitle(f"gelsim fidelity levels against `{runs[0]['settings']['reference']}`, {len(scenes)} scenes "
                  "(errors: lower left is better)")
     fig.tight_layout()
-    _save_fig(fig, path)
-    plt.close(fig)
-
-
-def _save_fig(fig, path: Path) -> None:
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, dpi=100, format="png")
-    atomic_write_bytes(path, buf.getvalue())
+    write_figure(path, fig, dpi=100)
 
 
 def write_reports(doc: dict, out_dir: str | Path) -> dict[str, Path]:
@@ -1061,18 +1034,10 @@ def _write_report(result: dict, out_dir: str | Path, stem: str, plot_stem: str, 
     if out.exists() and not out.is_dir():
         raise GelsimError(f"--out {out} is a file; give a directory")
     paths = {"json": out / f"{stem}.json", "markdown": out / f"{stem}.md", "plot": out / f"{plot_stem}.png"}
-    atomic_write_text(paths["json"], json.dumps(result, indent=1, default=_json_default) + "\n")
+    atomic_write_json(paths["json"], result)
     atomic_write_text(paths["markdown"], markdown(result))
     plot(result, paths["plot"])
     return paths
-
-
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
 
 
 # --------------------------------------------------------------------------------------
@@ -1253,8 +1218,7 @@ def convergence_plot(result: dict, path: Path) -> None:
     for ax in axes.ravel()[n:]:
         ax.axis("off")
     fig.tight_layout()
-    _save_fig(fig, path)
-    plt.close(fig)
+    write_figure(path, fig, dpi=100)
 
 
 def write_convergence(result: dict, out_dir: str | Path) -> dict[str, Path]:
@@ -1408,5 +1372,4 @@ def pitch_plot(studies: list[dict], path: Path) -> None:
     axes[1].legend(fontsize=7)
     fig.suptitle("Fine weaves: texture kept against the imprint grid's pixels per period")
     fig.tight_layout()
-    _save_fig(fig, path)
-    plt.close(fig)
+    write_figure(path, fig, dpi=100)

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from .errors import GelsimError
+from .errors import check_choice
 from .params import ASSETS_DIR, build, load_toml, param
 
 FIDELITY_FILE = ASSETS_DIR / "fidelity.toml"
@@ -40,6 +40,5 @@ def get_fidelity(name: str | Fidelity = DEFAULT_LEVEL) -> Fidelity:
     if isinstance(name, Fidelity):
         return name
     levels = fidelity_levels()
-    if name not in levels:
-        raise GelsimError(f"unknown fidelity {name!r}; choose one of {', '.join(levels)}")
+    check_choice("fidelity", name, levels)
     return levels[name]

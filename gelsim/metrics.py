@@ -10,6 +10,8 @@ Images are 8-bit scale, 0-255 DN (uint8 or float), ``(H, W)`` or ``(H, W, C)``.
   padded pixel enters the score; images narrower or shorter than 11 px are an error. (The local
   statistics are computed over the whole image with reflected borders and then cropped, which gives
   the same valid-region values.)
+  :func:`ssim_map` is the per-pixel map before that crop (the fidelity bench's score is its mean over
+  every pixel, border included, as its reports have always been).
 * :func:`psnr`: ``10 log10(255^2 / MSE)`` dB; ``+inf`` for identical images (MSE 0). Writers of JSON
   turn the infinity into what their format wants (e.g. ``null``).
 * :func:`mse`: the mean squared error, DN^2, over all pixels and channels.
@@ -44,6 +46,17 @@ def ssim(a: np.ndarray, b: np.ndarray) -> float:
     if min(a.shape[:2]) < SSIM_WINDOW_PX:
         raise GelsimError(f"images of {a.shape[:2]} px are smaller than SSIM's {SSIM_WINDOW_PX} px window; "
                           f"compare images at least {SSIM_WINDOW_PX} px on a side")
+    p = SSIM_WINDOW_PX // 2     # the valid region: drop the pixels whose window reaches past an edge
+    return float(ssim_map(a, b)[p:-p, p:-p].mean())
+
+
+def ssim_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """SSIM at every pixel (and channel) of two images of one shape, float64 shaped like them: the
+    local statistics of :func:`ssim` with reflected borders, so pixels within 5 px of an edge see
+    padded values (:func:`ssim` leaves them out; the fidelity bench averages the whole map)."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    _same_shape(a, b)
     c1, c2 = (SSIM_K[0] * PEAK_DN) ** 2, (SSIM_K[1] * PEAK_DN) ** 2
 
     def local_mean(x):
@@ -53,9 +66,7 @@ def ssim(a: np.ndarray, b: np.ndarray) -> float:
     saa = local_mean(a * a) - mu_a * mu_a
     sbb = local_mean(b * b) - mu_b * mu_b
     sab = local_mean(a * b) - mu_a * mu_b
-    s = ((2 * mu_a * mu_b + c1) * (2 * sab + c2)) / ((mu_a ** 2 + mu_b ** 2 + c1) * (saa + sbb + c2))
-    p = SSIM_WINDOW_PX // 2     # the valid region: drop the pixels whose window reaches past an edge
-    return float(s[p:-p, p:-p].mean())
+    return ((2 * mu_a * mu_b + c1) * (2 * sab + c2)) / ((mu_a ** 2 + mu_b ** 2 + c1) * (saa + sbb + c2))
 
 
 def mse(a: np.ndarray, b: np.ndarray) -> float:

@@ -20,11 +20,11 @@ import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 
-from .errors import GelsimError
+from .errors import GelsimError, check_choice
 from .params import ASSETS_DIR, build, load_toml, param
 from .schema import ACTIONS  # noqa: F401  (the dataset's action names; gelsim.motion.ACTIONS for callers)
 
@@ -42,6 +42,16 @@ def _check_range(where: str, r: tuple[float, float], lo: float | None = None, hi
         raise GelsimError(f"{where}: {r[1]} is above {hi}; lower the high end")
 
 
+class _Ranges:
+    """A table of ``[low, high]`` ranges: ``validate`` checks that each field named in ``BOUNDS``
+    has low <= high within its ``(lo, hi)`` bounds (the order of ``BOUNDS`` is the order of the checks)."""
+    BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {}
+
+    def validate(self, where: str) -> None:
+        for name, (lo, hi) in self.BOUNDS.items():
+            _check_range(f"{where}.{name}", getattr(self, name), lo, hi)
+
+
 @dataclass(frozen=True)
 class ActionWeights:
     press: float = param(7.0, lo=0.0, doc="relative frequency of press")
@@ -54,7 +64,9 @@ class ActionWeights:
 
 
 @dataclass(frozen=True)
-class TimingRanges:
+class TimingRanges(_Ranges):
+    BOUNDS = {"contact_phase": (0.01, 0.99), "rise_fraction": (0.0, 1.0), "hold_fraction": (0.0, 1.0),
+              "release_tail_fraction": (0.0, 1.0), "settle_fraction": (0.0, 1.0), "end_fraction": (0.0, 1.0)}
     precontact_frames: tuple[int, int] = param(doc="frames before the first contact frame, [low, high] inclusive")
     contact_phase: Range = param(doc="fraction of a frame period between contact and the first in-contact frame")
     rise_fraction: Range = param(doc="force rise time, fraction of the in-contact time")
@@ -71,9 +83,7 @@ class TimingRanges:
             lo, hi = getattr(self, name)
             if not 0 <= lo <= hi:
                 raise GelsimError(f"{where}.{name}: need 0 <= low <= high, got {(lo, hi)}")
-        _check_range(f"{where}.contact_phase", self.contact_phase, 0.01, 0.99)
-        for name in ("rise_fraction", "hold_fraction", "release_tail_fraction", "settle_fraction", "end_fraction"):
-            _check_range(f"{where}.{name}", getattr(self, name), 0.0, 1.0)
+        super().validate(where)
         if self.rise_fraction[1] + self.hold_fraction[1] + self.release_tail_fraction[1] > 0.9 + 1e-9:
             raise GelsimError(f"{where}: rise + hold + release_tail fractions can exceed 0.9, leaving little "
                               "time to release; lower their high ends")
@@ -83,23 +93,18 @@ class TimingRanges:
 
 
 @dataclass(frozen=True)
-class ApproachRanges:
+class ApproachRanges(_Ranges):
+    BOUNDS = {"speed_mm_s": (0.5, 200.0)}
     speed_mm_s: Range = param(doc="approach speed, mm/s")
     start_offset_mm: float = param(5.0, lo=0.0, hi=1000.0, doc="start within this distance of the origin, mm")
     fabric_rotation_deg: Range = param((0.0, 360.0), doc="fabric orientation, degrees")
 
-    def validate(self, where: str) -> None:
-        _check_range(f"{where}.speed_mm_s", self.speed_mm_s, 0.5, 200.0)
-
 
 @dataclass(frozen=True)
-class ForceRanges:
+class ForceRanges(_Ranges):
+    BOUNDS = {"peak_force_n": (0.05, 50.0), "slip_force_scale": (0.05, 1.0)}
     peak_force_n: Range = param(doc="target normal force of a press, N")
     slip_force_scale: Range = param((0.5, 0.9), doc="slip/twist force relative to a press")
-
-    def validate(self, where: str) -> None:
-        _check_range(f"{where}.peak_force_n", self.peak_force_n, 0.05, 50.0)
-        _check_range(f"{where}.slip_force_scale", self.slip_force_scale, 0.05, 1.0)
 
 
 @dataclass(frozen=True)
@@ -108,31 +113,23 @@ class TiltRanges:
 
 
 @dataclass(frozen=True)
-class SlipRanges:
+class SlipRanges(_Ranges):
+    BOUNDS = {"distance_mm": (0.0, 50.0)}
     distance_mm: Range = param(doc="slide distance, mm")
 
-    def validate(self, where: str) -> None:
-        _check_range(f"{where}.distance_mm", self.distance_mm, 0.0, 50.0)
-
 
 @dataclass(frozen=True)
-class TwistRanges:
+class TwistRanges(_Ranges):
+    BOUNDS = {"angle_deg": (0.0, 180.0)}
     angle_deg: Range = param(doc="magnitude of the rotation about the normal, degrees")
 
-    def validate(self, where: str) -> None:
-        _check_range(f"{where}.angle_deg", self.angle_deg, 0.0, 180.0)
-
 
 @dataclass(frozen=True)
-class TremorRanges:
+class TremorRanges(_Ranges):
+    BOUNDS = {"amplitude_mm": (0.0, 1.0), "frequency_hz": (0.0, 100.0), "force_fraction": (0.0, 0.5)}
     amplitude_mm: Range = param(doc="hand tremor amplitude, mm")
     frequency_hz: Range = param(doc="hand tremor frequency, Hz")
     force_fraction: Range = param((0.01, 0.05), doc="force modulation by tremor, fraction of the peak")
-
-    def validate(self, where: str) -> None:
-        _check_range(f"{where}.amplitude_mm", self.amplitude_mm, 0.0, 1.0)
-        _check_range(f"{where}.frequency_hz", self.frequency_hz, 0.0, 100.0)
-        _check_range(f"{where}.force_fraction", self.force_fraction, 0.0, 0.5)
 
 
 @dataclass(frozen=True)
@@ -184,8 +181,7 @@ class Motion:
     end_fraction: float = 0.05         # slip/twist: still at the end
 
     def __post_init__(self) -> None:
-        if self.action not in ACTIONS:
-            raise GelsimError(f"unknown action {self.action!r}; choose one of {', '.join(ACTIONS)}")
+        check_choice("action", self.action, ACTIONS)
         if not 0 <= self.precontact_frames < self.num_frames:
             raise GelsimError(f"precontact_frames {self.precontact_frames} must be in [0, num_frames="
                               f"{self.num_frames}); lower it")

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from .atomic import atomic_write_bytes
-from .errors import GelsimError
+from .errors import GelsimError, check_choice
 from .metrics import psnr, ssim
 from .params import param
 
@@ -162,8 +162,7 @@ def r15_pack_path() -> Path:
 
 def taxim_pack_path(name: str) -> Path:
     """Path of a cached taxim data pack (``"r15"`` or ``"mini"``; it may not exist yet)."""
-    if name not in TAXIM_PACKS:
-        raise GelsimError(f"unknown taxim data pack {name!r}; choose one of {', '.join(TAXIM_PACKS)}")
+    check_choice("taxim data pack", name, TAXIM_PACKS)
     return cache_dir() / f"taxim-{TAXIM_VERSION}" / TAXIM_PACKS[name][1]
 
 

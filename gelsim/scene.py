@@ -94,6 +94,14 @@ def _grid(x0_mm, y0_mm, width_px, height_px, mm_per_px, center_mm, rotation_deg)
     return c * X + s * Y, -s * X + c * Y
 
 
+class _Rigid:
+    """A smooth rigid object: no compliance of its own (``support()`` is None), no texture scale."""
+    texture_mm = None
+
+    def support(self):
+        return None
+
+
 def positive_mm(name: str, value) -> float:
     """``value`` as a float if it is a finite length > 0 mm; else a GelsimError naming ``name``."""
     if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
@@ -102,12 +110,11 @@ def positive_mm(name: str, value) -> float:
 
 
 @dataclass(frozen=True)
-class Sphere:
+class Sphere(_Rigid):
     """A rigid ball of ``diameter_mm`` resting on the base plane at ``center_mm``."""
     diameter_mm: float
     center_mm: tuple[float, float] = (0.0, 0.0)
     friction: float = DEFAULT_FRICTION
-    texture_mm = None
 
     def __post_init__(self):
         positive_mm("diameter_mm", self.diameter_mm)
@@ -116,9 +123,6 @@ class Sphere:
     def name(self) -> str:
         return f"sphere {self.diameter_mm:g} mm"
 
-    def support(self):
-        return None
-
     def heights(self, x0_mm, y0_mm, width_px, height_px, mm_per_px, *, seed=0, rotation_deg=0.0):
         r = self.diameter_mm / 2.0
         x, y = _grid(x0_mm, y0_mm, width_px, height_px, mm_per_px, self.center_mm, 0.0)
@@ -126,7 +130,7 @@ class Sphere:
 
 
 @dataclass(frozen=True)
-class Cylinder:
+class Cylinder(_Rigid):
     """A rigid cylinder lying on its side, axis through ``center_mm`` at ``angle_deg`` from +x;
     ``length_mm`` None is longer than any field."""
     diameter_mm: float
@@ -134,7 +138,6 @@ class Cylinder:
     angle_deg: float = 0.0
     center_mm: tuple[float, float] = (0.0, 0.0)
     friction: float = DEFAULT_FRICTION
-    texture_mm = None
 
     def __post_init__(self):
         positive_mm("diameter_mm", self.diameter_mm)
@@ -144,9 +147,6 @@ class Cylinder:
     @property
     def name(self) -> str:
         return f"cylinder {self.diameter_mm:g} mm"
-
-    def support(self):
-        return None
 
     def heights(self, x0_mm, y0_mm, width_px, height_px, mm_per_px, *, seed=0, rotation_deg=0.0):
         r = self.diameter_mm / 2.0
@@ -158,20 +158,16 @@ class Cylinder:
 
 
 @dataclass(frozen=True)
-class Mesh:
+class Mesh(_Rigid):
     """Any mesh trimesh reads (units mm), its lowest side facing the gel, its x-y bounding box
     centred on ``center_mm``: heights are how far its lower surface stands below its top."""
     path: str
     center_mm: tuple[float, float] = (0.0, 0.0)
     friction: float = DEFAULT_FRICTION
-    texture_mm = None
 
     @property
     def name(self) -> str:
         return f"mesh {Path(self.path).name}"
-
-    def support(self):
-        return None
 
     def heights(self, x0_mm, y0_mm, width_px, height_px, mm_per_px, *, seed=0, rotation_deg=0.0):
         from .indenters import load_mesh, mesh_heights

@@ -241,19 +241,17 @@ def texture_budget(fabric, force_n: float, profile, fidelity, *, seed: int = 0, 
 
 def sheet(tiles: list[tuple[np.ndarray, str]], columns: int = 10) -> np.ndarray:
     """Labelled tiles (uint8 RGB crops of one size, label text) on a white grid: uint8 RGB."""
+    from .fabrics.preview import put_fitted_label
+
     th, tw = tiles[0][0].shape[:2]
     label_h, pad = 16, 3
     rows = -(-len(tiles) // columns)
     out = np.full((rows * (th + label_h + pad) + pad, columns * (tw + pad) + pad, 3), 255, np.uint8)
-    font = cv2.FONT_HERSHEY_SIMPLEX
     for k, (img, text) in enumerate(tiles):
         r, c = divmod(k, columns)
         y, x = pad + r * (th + label_h + pad), pad + c * (tw + pad)
         out[y + label_h:y + label_h + th, x:x + tw] = img
-        scale = 0.36
-        while scale > 0.2 and cv2.getTextSize(text, font, scale, 1)[0][0] > tw:
-            scale -= 0.02
-        cv2.putText(out, text, (x, y + label_h - 4), font, scale, (0, 0, 0), 1, cv2.LINE_AA)
+        put_fitted_label(out, text, (x, y + label_h - 4), tw, 0.36)
     return out
 
 

@@ -23,7 +23,7 @@ from typing import Iterable, Literal
 import numpy as np
 
 from .atomic import partial_path
-from .errors import GelsimError
+from .errors import GelsimError, check_choice
 
 VideoFormat = Literal["h264", "ffv1", "png"]
 EXTENSIONS: dict[str, str] = {"h264": ".mp4", "ffv1": ".mkv", "png": ""}
@@ -35,8 +35,7 @@ DEFAULT_PRESET = "ultrafast"
 
 def video_path(stem: str | Path, fmt: VideoFormat) -> Path:
     """The file (or directory, for PNG) a sequence named ``stem`` is stored under."""
-    if fmt not in EXTENSIONS:
-        raise GelsimError(f"unknown video format {fmt!r}; choose one of {', '.join(EXTENSIONS)}")
+    check_choice("video format", fmt, EXTENSIONS)
     return Path(str(stem) + EXTENSIONS[fmt])
 
 
@@ -61,8 +60,7 @@ class VideoWriter:
                  crf: int = DEFAULT_CRF, preset: str = DEFAULT_PRESET):
         self.path = Path(path)
         self.fmt = fmt
-        if fmt not in EXTENSIONS:
-            raise GelsimError(f"unknown video format {fmt!r}; choose one of {', '.join(EXTENSIONS)}")
+        check_choice("video format", fmt, EXTENSIONS)
         self.fps = fps
         self.crf = crf
         self.preset = preset

@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from gelsim.cli import HelpFormatter, dispatch, print_json
+from gelsim.cli import HelpFormatter, dispatch, print_json, print_result
 
 from . import __version__
 
@@ -74,11 +74,7 @@ def _pretrain(args) -> int:
                    batch_size=args.batch_size, lr=args.lr, optimizer=args.optimizer, seed=args.seed, contact_only=not args.all_frames,
                    device=args.device, progress=not args.quiet, crop=args.crop,
                    log=None if args.json or args.quiet else print)
-    if args.json:
-        print_json(res)
-    else:
-        print(f"backbone: {res['path']} (validation frame accuracy {res['val_acc']:.3f})")
-    return 0
+    return print_result(args.json, res, f"backbone: {res['path']} (validation frame accuracy {res['val_acc']:.3f})")
 
 
 def _train(args) -> int:
@@ -108,12 +104,8 @@ def _evaluate(args) -> int:
     from .evaluate import evaluate
 
     res = evaluate(args.checkpoint, args.data, args.split, out=args.out, device=args.device)
-    if args.json:
-        print_json(res)
-    else:
-        print(f"{res['split']} accuracy {res['accuracy']:.4f} ({res['count']} windows), mean per-class "
-              f"{res['mean_class_accuracy']:.4f}; confusion matrix: {res['confusion_png']}")
-    return 0
+    return print_result(args.json, res, f"{res['split']} accuracy {res['accuracy']:.4f} ({res['count']} windows), "
+                        f"mean per-class {res['mean_class_accuracy']:.4f}; confusion matrix: {res['confusion_png']}")
 
 
 def _experiment(args) -> int:
@@ -135,11 +127,7 @@ def _explain(args) -> int:
     from .explain import explain
 
     res = explain(args.checkpoint, args.sequence, args.out, args.data, args.split)
-    if args.json:
-        print_json(res)
-    else:
-        print("\n".join(res["files"]))
-    return 0
+    return print_result(args.json, res, "\n".join(res["files"]))
 
 
 TRAIN_HELP = """train one model (writes config.json, log.csv, last.pt, best.pt)

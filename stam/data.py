@@ -27,6 +27,7 @@ from torch.utils.data import Dataset
 
 from gelsim import schema
 from gelsim.atomic import atomic_open
+from gelsim.errors import check_choice
 from gelsim.schema import SPLITS
 
 from .errors import StamError
@@ -241,8 +242,7 @@ class TactileDataset:
         return len(self.fabric_ids)
 
     def split(self, name: str) -> list[Sequence]:
-        if name not in SPLITS:
-            raise StamError(f"unknown split {name!r}; choose one of {', '.join(SPLITS)}")
+        check_choice("split", name, SPLITS, StamError)
         return [s for s in self.sequences if s.split == name]
 
     def _paths(self, seq: Sequence, size: int) -> tuple[Path, Path]:
@@ -365,10 +365,8 @@ class WindowDataset(Dataset):
     def __init__(self, data: TactileDataset, split: str, n_frames: int, start: str = "contact",
                  image_size: int = 224, onset: str = "detected",
                  threshold: float = DEFAULT_ONSET_THRESHOLD, features: dict | None = None):
-        if start not in STARTS:
-            raise StamError(f"unknown start {start!r}; choose one of {', '.join(STARTS)}")
-        if onset not in ONSETS:
-            raise StamError(f"unknown onset {onset!r}; choose one of {', '.join(ONSETS)}")
+        check_choice("start", start, STARTS, StamError)
+        check_choice("onset", onset, ONSETS, StamError)
         self.data, self.n, self.size, self.features = data, n_frames, image_size, features
         seqs = data.split(split)
         if not seqs:

@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch.utils.data import DataLoader
+
+from gelsim.atomic import atomic_write_text, write_figure
 
 from .data import TactileDataset, WindowDataset
 from .train import model_from_checkpoint, resolve_device
@@ -59,12 +60,7 @@ def plot_confusion(cm, class_names: list[str], path: str | Path, title: str = ""
     ax.set_title(title)
     fig.colorbar(im, ax=ax, fraction=0.046, label="fraction of true class")
     fig.tight_layout()
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return write_figure(path, fig, dpi=100)
 
 
 def evaluate(checkpoint: str | Path, data_dir: str | None = None, split: str = "test", *,
@@ -94,7 +90,5 @@ def evaluate(checkpoint: str | Path, data_dir: str | None = None, split: str = "
     png = plot_confusion(res["confusion"], data.class_names, out / f"confusion-{split}.png",
                          f"{cfg.model}, n={cfg.frames}, {cfg.start}: {split} accuracy {res['accuracy']:.3f}")
     res["confusion_png"] = str(png)
-    tmp = out / f".eval-{split}.json.partial-{os.getpid()}"
-    tmp.write_text(json.dumps(res, indent=1))
-    os.replace(tmp, out / f"eval-{split}.json")
+    atomic_write_text(out / f"eval-{split}.json", json.dumps(res, indent=1))
     return res

@@ -30,14 +30,13 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from gelsim.atomic import atomic_write_json, atomic_write_text
+from gelsim.atomic import atomic_write_json, atomic_write_text, write_figure
 
 from . import stats
 from .backbone import AlexNetFeatures
@@ -473,8 +472,4 @@ def plot_tables(path: Path, tables: dict, models, frames, settings) -> Path:
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
-    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return write_figure(path, fig, dpi=100)

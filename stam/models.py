@@ -33,6 +33,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from gelsim.errors import check_choice
+
 from .backbone import AlexNetFeatures, AlexNetHead, feature_size
 from .errors import StamError
 
@@ -82,8 +84,7 @@ class TemporalAttention(nn.Module):
     def __init__(self, channels: int, qk_reduction: int = 8, residual_gain: str = "learned",
                  gamma_init: float = 0.0):
         super().__init__()
-        if residual_gain not in RESIDUAL_GAINS:
-            raise StamError(f"unknown residual_gain {residual_gain!r}; choose one of {', '.join(RESIDUAL_GAINS)}")
+        check_choice("residual_gain", residual_gain, RESIDUAL_GAINS, StamError)
         cq = max(1, channels // qk_reduction)
         self.q = nn.Conv3d(channels, cq, kernel_size=1)
         self.k = nn.Conv3d(channels, cq, kernel_size=1)
@@ -119,12 +120,9 @@ class SequenceModel(nn.Module):
                  sa_batchnorm: bool = False, dropout: float = 0.5, pool: int | None = None,
                  hidden: int = 0):
         super().__init__()
-        if name not in MODEL_NAMES:
-            raise StamError(f"unknown model {name!r}; choose one of {', '.join(MODEL_NAMES)}")
-        if fusion not in FUSIONS:
-            raise StamError(f"unknown fusion {fusion!r}; choose one of {', '.join(FUSIONS)}")
-        if combine not in COMBINES:
-            raise StamError(f"unknown combine {combine!r}; choose one of {', '.join(COMBINES)}")
+        check_choice("model", name, MODEL_NAMES, StamError)
+        check_choice("fusion", fusion, FUSIONS, StamError)
+        check_choice("combine", combine, COMBINES, StamError)
         if n_frames < 1:
             raise StamError(f"n_frames must be at least 1, got {n_frames}; use 2..7 as the paper")
         if modules < 1 or qk_reduction < 1:

@@ -12,12 +12,12 @@ import argparse
 import dataclasses
 import json
 import math
-import sys
 from typing import Any
 
 import numpy as np
 
 from gelsim.atomic import atomic_write_text
+from gelsim.cli import run_script
 from gelsim.fidelity import get_fidelity
 from gelsim.gel import press
 from gelsim.gel.layer import disk_layer_factor, effective_modulus_mpa
@@ -56,7 +56,7 @@ def fit_pyramid_law(profile=None, resolution_px: int = 480) -> dict[str, Any]:
     (the whole pad on a plane and on gentle domes, at a quarter of the resolution: smooth
     shapes); the coarsest blur from the depth outside a sphere's contact. A cylinder on its
     side is reported as a check that took no part in the fit. A few minutes;
-    ``benchmarks/bench_gel.py --fit`` writes the result to LAW_FILE.
+    ``tools/fit_pyramid_law.py --write`` writes the result to LAW_FILE.
     """
     from scipy.optimize import least_squares
 
@@ -159,7 +159,7 @@ def write_law(values: dict[str, Any], path=LAW_FILE) -> None:
                    "spheres and broad contacts on the profile's gel, blur on the depth outside a sphere's contact; "
                    f"max |log F error| {values.get('force_resid_max')}, "
                    f"rms log contact-radius error {values.get('contact_radius_rms_log')}")
-    header = ("Force law and smoothing of the pyramid imprint model (gelsim/gel.py), fitted to the\n"
+    header = ("Force law and smoothing of the pyramid imprint model (gelsim/gel/pyramid.py), fitted to the\n"
               "elastic model. Regenerate: .venv/bin/python tools/fit_pyramid_law.py --write\n"
               "contact_fraction: 0.5 would be exact for Hertz (penetration d/2 at r = a); the fit matches the\n"
               "elastic layer's contact radii, which exceed Hertz's as the contact grows against the thickness.\n"
@@ -185,4 +185,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)

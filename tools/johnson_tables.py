@@ -10,11 +10,11 @@ same fundamental. About a minute. Run from the repository root:
 from __future__ import annotations
 
 import argparse
-import sys
 
 import numpy as np
 
 from gelsim.atomic import atomic_write_text
+from gelsim.cli import run_script
 from gelsim.gel import johnson
 from gelsim.params import dump_toml
 
@@ -58,4 +58,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main)

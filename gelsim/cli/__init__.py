@@ -3,7 +3,8 @@
 Each command group lives in its own module exposing ``register(subparsers)``;
 the handler it installs receives the parsed ``argparse.Namespace`` and returns
 an exit code. A :class:`~gelsim.errors.GelsimError` becomes one line on stderr
-and exit status 2.
+and exit status 2 (:func:`guarded`; the scripts under ``benchmarks/`` and ``tools/``
+get the same contract from :func:`run_script`).
 """
 from __future__ import annotations
 
@@ -12,8 +13,10 @@ import importlib
 import json
 import os
 import sys
+from typing import Callable, NoReturn
 
 from .. import __version__
+from ..atomic import json_default
 from ..errors import GelsimError
 
 # Command modules, in the order they appear in --help.
@@ -35,20 +38,19 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescript
 
 def print_json(obj) -> None:
     """Write one JSON document to stdout (the ``--json`` contract of every command)."""
-    json.dump(obj, sys.stdout, indent=2, default=_json_default)
+    json.dump(obj, sys.stdout, indent=2, default=json_default)
     sys.stdout.write("\n")
 
 
-def _json_default(o):
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if hasattr(o, "__fspath__"):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+def print_result(as_json: bool, doc, *lines: str) -> int:
+    """A command's result: ``doc`` as one JSON document with ``--json`` (``as_json``), else ``lines``,
+    one per line. Returns 0, the handler's exit status."""
+    if as_json:
+        print_json(doc)
+    else:
+        for line in lines:
+            print(line)
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -66,28 +68,41 @@ def build_parser() -> argparse.ArgumentParser:
 
 def dispatch(parser: argparse.ArgumentParser, argv: list[str] | None, *,
              interrupted: str = "rerun the same command to continue") -> int:
-    """Parse ``argv`` and run the chosen command's handler with the CLI's error contract:
-    a GelsimError is one line on stderr and exit status 2; Ctrl-C exits 130 with ``interrupted``; a
-    closed stdout pipe (``| head``) ends quietly with status 141."""
+    """Parse ``argv`` and run the chosen command's handler under :func:`guarded` (the CLI's error
+    contract); no command: the help and status 2."""
     args = parser.parse_args(argv)
     if not getattr(args, "handler", None):
         parser.print_help()
         return 2
+    return guarded(parser.prog, lambda: args.handler(args), interrupted=interrupted)
+
+
+def guarded(prog: str, run: Callable[[], int | None], *,
+            interrupted: str = "rerun the same command to continue") -> int:
+    """``run()``'s exit status (None is 0) under the CLI's error contract: a GelsimError is one line
+    ``PROG: error: <message>`` on stderr and status 2; Ctrl-C exits 130 with ``interrupted``; a closed
+    stdout pipe (``| head``) ends quietly with status 141."""
     try:
-        code = int(args.handler(args) or 0)
+        code = int(run() or 0)
         sys.stdout.flush()  # inside the try: a reader gone away (`| head`) shows up here, not at exit
         return code
     except GelsimError as e:
-        print(f"{parser.prog}: error: {e}", file=sys.stderr)
+        print(f"{prog}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"{parser.prog}: interrupted; {interrupted}", file=sys.stderr)
+        print(f"{prog}: interrupted; {interrupted}", file=sys.stderr)
         return 130
     except BrokenPipeError:
         # The reader closed the pipe: stop quietly, as cat does. Point stdout at /dev/null so that
         # Python's own flush at exit does not raise again; 141 = 128 + SIGPIPE, a shell's status for it.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
+
+
+def run_script(main: Callable[[], int | None]) -> NoReturn:
+    """``if __name__ == "__main__": run_script(main)``: a benchmark's or tool's ``main()`` under
+    :func:`guarded` (the script's file name as the program's), exiting with its status."""
+    sys.exit(guarded(os.path.basename(sys.argv[0]), main))
 
 
 def main(argv: list[str] | None = None) -> int:

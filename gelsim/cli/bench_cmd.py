@@ -109,7 +109,7 @@ def configs_from_args(args) -> list:
 
 def run_bench_cmd(args) -> int:
     from .. import bench
-    from . import print_json
+    from . import print_result
 
     cfgs = configs_from_args(args)
 
@@ -132,9 +132,4 @@ def run_bench_cmd(args) -> int:
         result = bench.run_benches(cfgs, progress=say)
         paths = bench.write_reports(result, args.out)
         text = bench.markdown_table(result)
-    if args.json:
-        print_json(result)
-    else:
-        print(text)
-        print("wrote " + ", ".join(str(p) for p in paths.values()))
-    return 0
+    return print_result(args.json, result, text, "wrote " + ", ".join(str(p) for p in paths.values()))

@@ -80,28 +80,17 @@ def config_from_args(args: argparse.Namespace):
     values: dict = {}
     if args.preset:
         values.update(PRESETS[args.preset])
-    if args.fabrics is not None:
-        values["fabrics"] = args.fabrics
-    if args.sequences_per_fabric is not None:
-        values["sequences_per_fabric"] = args.sequences_per_fabric
-    if args.actions is not None:
-        values["actions"] = parse_ratio(args.actions)
-    if args.split is not None:
-        values["split"] = parse_ratio(args.split, "--split", "train:val:test", "7:2:1")
-    if args.frames is not None:
-        values["frames"] = parse_range(args.frames, "--frames", lo=2)
-    if args.precontact is not None:
-        values["precontact"] = parse_range(args.precontact, "--precontact", lo=0)
-    if args.profile is not None:
-        values["profile"] = args.profile
-    if args.resolution is not None:
-        values["resolution"] = parse_resolution(args.resolution)
-    if args.fidelity is not None:
-        values["fidelity"] = args.fidelity
-    if args.seed is not None:
-        values["seed"] = args.seed
-    if args.format is not None:
-        values["format"] = args.format
+    # An option given overrides the preset; these are parsed from their text, the others taken as they are.
+    parse = {"actions": parse_ratio,
+             "split": lambda text: parse_ratio(text, "--split", "train:val:test", "7:2:1"),
+             "frames": lambda text: parse_range(text, "--frames", lo=2),
+             "precontact": lambda text: parse_range(text, "--precontact", lo=0),
+             "resolution": parse_resolution}
+    for name in ("fabrics", "sequences_per_fabric", "actions", "split", "frames", "precontact", "profile",
+                 "resolution", "fidelity", "seed", "format"):
+        value = getattr(args, name)
+        if value is not None:
+            values[name] = parse[name](value) if name in parse else value
     if args.units is not None:
         if not 0 <= args.units <= 1000:
             raise GelsimError(f"--units {args.units} is out of range; give 0 (the profile itself) to 1000")

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import time
 
-from . import HelpFormatter, print_json
+from . import HelpFormatter, print_result
 from ..frame import DEFAULT_FORCE_N
 
 
@@ -59,8 +59,5 @@ def run(args) -> int:
     info["stages_ms"]["write_png"] = round((time.perf_counter() - t) * 1e3, 2)
     info["total_ms"] = round((time.perf_counter() - t0) * 1e3, 2)
     info["out"] = str(out)
-    if args.json:
-        print_json(info)
-    else:
-        print(f"wrote {out} ({rgb.shape[1]}x{rgb.shape[0]}, {info['backend']}, {info['total_ms']:.0f} ms)")
-    return 0
+    return print_result(args.json, info,
+                        f"wrote {out} ({rgb.shape[1]}x{rgb.shape[0]}, {info['backend']}, {info['total_ms']:.0f} ms)")

@@ -87,6 +87,14 @@ def preview(fabric: Fabric, *, size_mm: float = 10.0, mm_per_px: float = 0.01, s
     return np.vstack([title, img])
 
 
+def put_fitted_label(img: np.ndarray, text: str, origin_xy: tuple[int, int], width_px: int, scale: float) -> None:
+    """Write ``text`` in black on the uint8 image ``img`` (in place), its baseline starting at ``origin_xy``
+    (x, y px), at font ``scale`` or, if it is wider than ``width_px``, smaller in steps of 0.02 down to 0.2."""
+    while scale > 0.2 and cv2.getTextSize(text, _FONT, scale, 1)[0][0] > width_px:
+        scale -= 0.02
+    cv2.putText(img, text, origin_xy, _FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)
+
+
 def contact_sheet(catalog: Catalog, *, tile_mm: float = 5.0, mm_per_px: float = 0.025, columns: int = 10,
                   seed: int = 0) -> np.ndarray:
     """uint8 BGR sheet of every fabric in ``catalog``, one labelled hillshade tile each, with a scale bar."""
@@ -107,10 +115,6 @@ def contact_sheet(catalog: Catalog, *, tile_mm: float = 5.0, mm_per_px: float = 
         y, x = pad + r * (n + label_h + pad), pad + c * (n + pad)
         h = heightfield(fab, x0_mm=0.0, y0_mm=0.0, width_px=n, height_px=n, mm_per_px=mm_per_px, seed=seed)
         sheet[y + label_h:y + label_h + n, x:x + n] = hillshade(h, mm_per_px)[:, :, None]
-        label = f"{fab.id} {fab.name}"
-        scale = 0.38
-        while scale > 0.2 and cv2.getTextSize(label, _FONT, scale, 1)[0][0] > n:
-            scale -= 0.02
-        cv2.putText(sheet, label, (x, y + label_h - 5), _FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)
+        put_fitted_label(sheet, f"{fab.id} {fab.name}", (x, y + label_h - 5), n, 0.38)
     _draw_scale_bar(sheet[pad + label_h:pad + label_h + n, pad:pad + n], mm_per_px, scale=0.4)
     return sheet

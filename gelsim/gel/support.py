@@ -79,10 +79,10 @@ class FabricSupport:
     def secant_stiffness_kpa_per_mm(self, p_kpa: float) -> float:
         """p / c(p) at the mean contact pressure ``p_kpa``: the cloth's stiffness there, kPa/mm
         (its initial tangent for p -> 0)."""
-        if self.compressibility == 0:
-            return math.inf
         p = max(float(p_kpa), 1e-6)
-        return p / float(self.compression_mm(p))
+        c = float(self.compression_mm(p))
+        # An incompressible cloth, or one so barely compressible that c underflows: rigid.
+        return p / c if c > 0 else math.inf
 
     @property
     def yarn_stiffness_mpa_per_mm(self) -> float:

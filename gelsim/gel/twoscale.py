@@ -36,6 +36,7 @@ import numpy as np
 from .johnson import contact_fraction, kept_relief, map_parameters
 from .layer import Operator, effective_modulus_mpa, pk_solve
 from .support import FabricSupport
+from .util import bbox
 
 # Macro solve's stopping rule (relative L1 change of the pressure per iteration): the macro
 # pressure feeds s = p / p*, which needs it to about 1% (the texture statistics' own spread is
@@ -99,14 +100,6 @@ def _closing(img: np.ndarray, k: int) -> np.ndarray:
     r, c = np.ones((1, k), np.uint8), np.ones((k, 1), np.uint8)
     d = cv2.dilate(cv2.dilate(img, r, borderType=cv2.BORDER_REPLICATE), c, borderType=cv2.BORDER_REPLICATE)
     return cv2.erode(cv2.erode(d, r, borderType=cv2.BORDER_REPLICATE), c, borderType=cv2.BORDER_REPLICATE)
-
-
-def _bbox(mask: np.ndarray) -> tuple[int, int, int, int] | None:
-    rows = np.flatnonzero(mask.any(axis=1))
-    if rows.size == 0:
-        return None
-    cols = np.flatnonzero(mask.any(axis=0))
-    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
 
 
 def _pool(img: np.ndarray, f: int) -> np.ndarray:
@@ -311,10 +304,10 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     reach = vmax
     sol = None
     for _ in range(2):
-        box = _bbox(work > np.float32(pmax - reach))
+        box = bbox(work > np.float32(pmax - reach))
         sol = _solve_macro(work, box, dx, gel, tex if has_texture else None, support, force_n, depth_mm,
                            macro_cells, warm)
-        cb = _bbox(sol.p > 0)
+        cb = bbox(sol.p > 0)
         if cb is None or max(cb[1] - cb[0], cb[3] - cb[2]) >= MIN_CONTACT_CELLS or sol.f == 1:
             break
         # The object reaches at most REFINE_REACH approaches deep inside the new region's edge.
@@ -330,7 +323,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     state = MacroState(key, p, (r0, c0), f, (ny, nx))
     depth = np.zeros((ny, nx), np.float32)
     mask = np.zeros((ny, nx), bool)
-    cb = _bbox(p > 0)
+    cb = bbox(p > 0)
     if cb is None:
         return depth, mask, delta, force, bottomed, state
     # 3. The gel's displacement around the patch: one more convolution over a padded window.

@@ -10,15 +10,22 @@ import numpy as np
 MIN_BLUR_PX = 0.33
 
 
-def bbox_slices(mask: np.ndarray, margin: int, shape) -> tuple[slice, slice] | None:
-    """Bounding box of ``mask`` grown by ``margin`` px and clipped to ``shape``; None if empty."""
+def bbox(mask: np.ndarray) -> tuple[int, int, int, int] | None:
+    """Bounding box ``(r0, r1, c0, c1)`` (ends exclusive) of the true pixels of the 2-D ``mask``; None if none."""
     rows = np.flatnonzero(mask.any(axis=1))
     if rows.size == 0:
         return None
     cols = np.flatnonzero(mask.any(axis=0))
-    r0, r1 = max(0, rows[0] - margin), min(shape[0], rows[-1] + 1 + margin)
-    c0, c1 = max(0, cols[0] - margin), min(shape[1], cols[-1] + 1 + margin)
-    return slice(r0, r1), slice(c0, c1)
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+
+
+def bbox_slices(mask: np.ndarray, margin: int, shape) -> tuple[slice, slice] | None:
+    """Bounding box of ``mask`` grown by ``margin`` px and clipped to ``shape``; None if empty."""
+    box = bbox(mask)
+    if box is None:
+        return None
+    r0, r1, c0, c1 = box
+    return slice(max(0, r0 - margin), min(shape[0], r1 + margin)), slice(max(0, c0 - margin), min(shape[1], c1 + margin))
 
 
 def pen_window(v: np.ndarray, delta: float, margin_px: int, window: str) -> tuple[slice, slice] | None:

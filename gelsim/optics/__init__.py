@@ -33,7 +33,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..errors import GelsimError
+from ..errors import GelsimError, check_choice
 from .composite import NoiseBank, blur_radius_px, darken_markers, gaussian_blur, marker_corners, to_uint8
 from .field import background_float, light_maps
 from .shader import Shader, shader_class, work_array
@@ -85,8 +85,7 @@ class Renderer:
     """
 
     def __init__(self, profile, backend: str = "fast", *, supersample: int = 1, seed: int = 0):
-        if backend not in BACKENDS:
-            raise GelsimError(f"unknown render backend {backend!r}; choose one of {', '.join(BACKENDS)}")
+        check_choice("render backend", backend, BACKENDS)
         if isinstance(supersample, bool) or not isinstance(supersample, (int, np.integer)) \
                 or not 1 <= supersample <= 4:
             raise GelsimError(f"supersample {supersample!r} is invalid; give an integer from 1 to 4")

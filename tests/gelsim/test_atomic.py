@@ -27,6 +27,15 @@ def test_whole_documents_replace_atomically_and_create_folders(tmp_path):
     assert _leftovers(target.parent) == [] and _leftovers(tmp_path) == []
 
 
+def test_json_keeps_numpy_values_and_paths(tmp_path):
+    doc = {"n": np.int64(3), "x": np.float32(0.5), "a": np.arange(3), "p": tmp_path / "f.png"}
+    atomic.atomic_write_json(tmp_path / "d.json", doc)
+    assert json.loads((tmp_path / "d.json").read_text()) == {"n": 3, "x": 0.5, "a": [0, 1, 2],
+                                                             "p": str(tmp_path / "f.png")}
+    with pytest.raises(TypeError, match="not JSON serialisable: object"):
+        atomic.json_default(object())
+
+
 def test_a_failing_writer_leaves_the_old_file_and_no_partial(tmp_path):
     target = tmp_path / "keep.bin"
     target.write_bytes(b"old")

@@ -233,6 +233,13 @@ def check_contact(c, motion):
     assert (c.normal_force_n >= 0).all()
 
 
+def simulate_flat(motion, profile):
+    """``motion`` simulated on a flat surface at the fast level, its frames checked (check_contact)."""
+    c = simulate(motion, flat_surface(motion, profile), profile, FAST)
+    check_contact(c, motion)
+    return c
+
+
 def base_motion(action, **kw):
     m = sample_motion(action, 3, frames=(12, 12), precontact=(2, 2))
     return dataclasses.replace(m, **kw)
@@ -240,8 +247,7 @@ def base_motion(action, **kw):
 
 def test_fast_long_slip(small):
     m = base_motion("slip", slip_distance_mm=50.0, approach_speed_mm_s=200.0, slip_direction_deg=30.0)
-    c = simulate(m, flat_surface(m, small), small, FAST)
-    check_contact(c, m)
+    c = simulate_flat(m, small)
     assert c.slipping.any()
     travel = np.hypot(*(c.position_mm[-1, :2] - c.position_mm[m.precontact_frames, :2]))
     assert travel > 30.0
@@ -249,22 +255,18 @@ def test_fast_long_slip(small):
 
 def test_ninety_degree_twist_motion(small):
     m = base_motion("twist", twist_deg=90.0)
-    c = simulate(m, flat_surface(m, small), small, FAST)
-    check_contact(c, m)
+    c = simulate_flat(m, small)
     assert abs(c.yaw_deg[-1] - c.yaw_deg[0]) > 60.0
 
 
 def test_largest_force(small):
     m = base_motion("press", peak_force_n=50.0)
-    c = simulate(m, flat_surface(m, small), small, FAST)
-    check_contact(c, m)
+    c = simulate_flat(m, small)
     assert c.normal_force_n.max() > 25.0
 
 
 def test_long_sequence(small):
-    m = sample_motion("press", 5, frames=(150, 150), precontact=(8, 8))
-    c = simulate(m, flat_surface(m, small), small, FAST)
-    check_contact(c, m)
+    simulate_flat(sample_motion("press", 5, frames=(150, 150), precontact=(8, 8)), small)
 
 
 # ------------------------------------------------------------------------------ fabrics

@@ -338,3 +338,15 @@ def test_coarse_resolution_is_antialiased_and_still_seamless():
     assert abs(float(h.mean()) - float(naive.mean())) < 0.2 * f.relief_mm
     right = heightfield(f, x0_mm=30 * mpp, y0_mm=0.0, width_px=30, height_px=40, **kw)
     np.testing.assert_allclose(h[:, 30:], right, rtol=0, atol=1e-5 * f.relief_mm)
+
+
+def test_fitted_label_shrinks_to_its_width():
+    from gelsim.fabrics.preview import put_fitted_label
+
+    def ink_columns(width_px):
+        img = np.full((24, 300, 3), 255, np.uint8)
+        put_fitted_label(img, "47 wool jersey, a long name", (0, 18), width_px, 0.38)
+        return np.flatnonzero((img < 128).any(axis=(0, 2)))
+
+    free, tight = ink_columns(300), ink_columns(90)
+    assert tight.size and tight.max() <= 90 < free.max()

@@ -260,3 +260,22 @@ def test_property_finite_nonnegative(d, f, e, nu, th, cx, model, sup, dome):
     assert im.depth_mm.max() <= prof.gel.max_indentation_mm * 1.001
     assert math.isfinite(im.normal_force_n) and 0 < im.normal_force_n <= f * (1 + 1e-6)
     assert im.contact_mask.any() == (im.contact_area_mm2 > 0)
+
+
+def test_bounding_boxes_of_a_mask():
+    from gelsim.gel.util import bbox, bbox_slices
+
+    mask = np.zeros((10, 12), bool)
+    assert bbox(mask) is None and bbox_slices(mask, 2, mask.shape) is None
+    mask[3:5, 7:9] = True
+    assert bbox(mask) == (3, 5, 7, 9)
+    assert bbox_slices(mask, 2, mask.shape) == (slice(1, 7), slice(5, 11))
+    assert bbox_slices(mask, 4, mask.shape) == (slice(0, 9), slice(3, 12))   # clipped to the grid
+
+
+@pytest.mark.parametrize("compressibility", [0.0, 5e-324])
+def test_an_incompressible_cloth_is_rigid_even_when_its_compression_underflows(compressibility):
+    # hypothesis found 5e-324: a subnormal EMC makes the compression 0.0 and p / c divided by zero
+    s = FabricSupport(0.5, compressibility, 1.0)
+    assert s.secant_stiffness_kpa_per_mm(2.0) == math.inf
+    assert FabricSupport(0.5, 0.3, 1.0).secant_stiffness_kpa_per_mm(2.0) < math.inf

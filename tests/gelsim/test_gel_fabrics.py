@@ -4,8 +4,8 @@ Each case presses a 256 x 192 px patch of a catalog fabric (the ViTac pixel, 0.0
 5.0 x 3.8 mm) over the whole patch at 7.5 kPa (2 N on the full 18.9 x 14.2 mm pad, a firm press
 by hand) on a flat gel, rigid or on the fabric's own compliance (gelsim.gel.support: cloth
 compression after Kawabata, yarn flattening), at the "balanced" and "fast" levels and with the
-elastic reference. Agreement is measured away from the patch's edge (0.6 mm), on what the camera
-sees of the texture:
+elastic reference (the cases and measures of gelsim.gel.agreement). Agreement is measured away from
+the patch's edge (0.6 mm), on what the camera sees of the texture:
 
 - texture correlation: Pearson correlation of the depth maps after removing a 0.5 mm blur;
 - slope ratio: RMS slope of the depth map, two-scale over reference;
@@ -15,84 +15,23 @@ sees of the texture:
 Tolerances are the measured spread (docs/imprint.md) with some margin.
 """
 import dataclasses
-import functools
 import math
 
-import cv2
 import numpy as np
 import pytest
 
 from gelsim.errors import GelsimError
-from gelsim.fabrics import heightfield, load_catalog
-from gelsim.fidelity import get_fidelity
 from gelsim.gel import FabricSupport, disk_layer_factor, effective_modulus_mpa, press
+from gelsim.gel.agreement import (ELASTIC, FABRICS, FORCE_N, LEVELS, PATCH, PRESSURE_MPA, agreement, fabric,
+                                  imprint, inner, texture)
 from gelsim.gel.support import MAX_COMPRESSION, P0_KPA, PM_KPA
 from gelsim.sensor import load_profile
 
-ELASTIC = dataclasses.replace(get_fidelity("reference"), imprint_model="elastic", imprint_scale=1.0)
-LEVELS = {"balanced": get_fidelity("balanced"), "fast": get_fidelity("fast")}
-FULL_PAD_MM2 = 18.912 * 14.184  # the ViTac field, 960 x 720 px at 0.0197 mm/px
-PRESSURE_MPA = 2.0 / FULL_PAD_MM2
-# One of each family the task names: plain weave, twill, knit, corduroy, felt, leather, mesh.
-FABRICS = {"plain": 1, "twill": 21, "knit": 47, "corduroy": 65, "felt": 78, "leather": 86, "mesh": 95}
-EDGE_MM = 0.6      # the patch's rim feels its edge, not the texture
-TEXTURE_MM = 0.5   # blur removed before comparing textures: the yarn scale stays
 # Measured (7 fabrics x rigid/supported x balanced/fast): correlation 0.89-0.997, slope
 # 0.82-1.17, contact 0.52-1.78, approach 0.74-1.09.
 TOL = {"corr": 0.85, "slope": (0.7, 1.35), "contact": (0.45, 2.0), "approach": (0.65, 1.25)}
 # Cases whose elastic reference converges in about a second: in the default suite.
 QUICK = {True: ("corduroy", "felt", "mesh"), False: ("corduroy", "mesh")}
-
-
-def patch_profile():
-    p = load_profile("vitac")
-    return dataclasses.replace(p, image=dataclasses.replace(p.image, width_px=256, height_px=192, mm_per_px=0.0197),
-                               gel=dataclasses.replace(p.gel, dome_radius_mm=0.0))
-
-
-PATCH = patch_profile()
-FORCE_N = PRESSURE_MPA * PATCH.field_mm[0] * PATCH.field_mm[1]
-
-
-@functools.cache
-def fabric(name):
-    fab = load_catalog()[FABRICS[name]]
-    h, w = PATCH.shape
-    mm = PATCH.image.mm_per_px
-    prot = heightfield(fab, x0_mm=-(w - 1) / 2 * mm, y0_mm=-(h - 1) / 2 * mm, width_px=w, height_px=h,
-                       mm_per_px=mm, seed=0)
-    return fab, prot
-
-
-@functools.cache
-def imprint(name, supported, level):
-    fab, prot = fabric(name)
-    fid = ELASTIC if level == "elastic" else LEVELS[level]
-    return press(prot, PATCH, fid, force_n=FORCE_N, support=fab.support() if supported else None,
-                 texture_mm=fab.texture_mm)
-
-
-def inner(a):
-    m = int(round(EDGE_MM / PATCH.image.mm_per_px))
-    return a[m:-m, m:-m]
-
-
-def texture(depth):
-    d = depth.astype(np.float64)
-    return inner(d - cv2.GaussianBlur(d, (0, 0), TEXTURE_MM / PATCH.image.mm_per_px))
-
-
-def slope_rms(depth):
-    gy, gx = np.gradient(inner(depth.astype(np.float64)), PATCH.image.mm_per_px)
-    return float(np.sqrt(np.mean(gx * gx + gy * gy)))
-
-
-def agreement(fast, ref) -> dict:
-    ta, tb = texture(fast.depth_mm), texture(ref.depth_mm)
-    return {"corr": float(np.corrcoef(ta.ravel(), tb.ravel())[0, 1]),
-            "slope": slope_rms(fast.depth_mm) / slope_rms(ref.depth_mm),
-            "contact": float(inner(fast.contact_mask).mean()) / float(inner(ref.contact_mask).mean()),
-            "approach": fast.indentation_mm / ref.indentation_mm}
 
 
 def check(name, supported, level):

@@ -21,17 +21,12 @@ def no_jitter(profile, **kw):
 
 
 @pytest.fixture(scope="module")
-def prof():
-    return load_profile("vitac")
+def imprint(vitac):
+    return press(indenters.sphere(6.0, vitac, center_mm=(0.8, -0.4)), vitac, BASE, force_n=0.2)
 
 
-@pytest.fixture(scope="module")
-def imprint(prof):
-    return press(indenters.sphere(6.0, prof, center_mm=(0.8, -0.4)), prof, BASE, force_n=0.2)
-
-
-def test_square_grid_size_and_pitch_in_pixels(prof):
-    p = no_jitter(prof)
+def test_square_grid_size_and_pitch_in_pixels(vitac):
+    p = no_jitter(vitac)
     grid = marker_grid(p)
     pitch_px = p.markers.pitch_mm / p.image.mm_per_px
     d = np.diff(np.unique(np.round(grid[:, 0], 3)))
@@ -44,8 +39,8 @@ def test_square_grid_size_and_pitch_in_pixels(prof):
     assert len(grid) == 11 * 9  # the 11x9 grid of 1.6 mm over 18.9 x 14.2 mm
 
 
-def test_hex_layout(prof):
-    p = no_jitter(prof, layout="hex")
+def test_hex_layout(vitac):
+    p = no_jitter(vitac, layout="hex")
     grid = marker_grid(p)
     rows = np.unique(np.round(grid[:, 1], 3))
     pitch_px = p.markers.pitch_mm / p.image.mm_per_px
@@ -56,11 +51,11 @@ def test_hex_layout(prof):
     assert np.allclose(d.min(axis=1), pitch_px, atol=1e-3)
 
 
-def test_jitter_is_seeded(prof):
-    a, b, c = marker_grid(prof, seed=1), marker_grid(prof, seed=1), marker_grid(prof, seed=2)
+def test_jitter_is_seeded(vitac):
+    a, b, c = marker_grid(vitac, seed=1), marker_grid(vitac, seed=1), marker_grid(vitac, seed=2)
     assert np.array_equal(a, b) and not np.array_equal(a, c)
-    sigma = prof.markers.jitter_mm / prof.image.mm_per_px
-    assert 0 < np.abs(a - marker_grid(no_jitter(prof))).max() < 6 * sigma
+    sigma = vitac.markers.jitter_mm / vitac.image.mm_per_px
+    assert 0 < np.abs(a - marker_grid(no_jitter(vitac))).max() < 6 * sigma
 
 
 def test_disabled_markers_are_empty():
@@ -70,9 +65,9 @@ def test_disabled_markers_are_empty():
 
 
 @pytest.mark.parametrize("fid", FIDS, ids=ids)
-def test_rest_equals_displace_without_imprint(prof, fid):
-    r = rest_markers(prof, seed=3)
-    d = displace(prof, fid, None, shear_mm=(0.3, 0.1), twist_deg=4.0, seed=3)
+def test_rest_equals_displace_without_imprint(vitac, fid):
+    r = rest_markers(vitac, seed=3)
+    d = displace(vitac, fid, None, shear_mm=(0.3, 0.1), twist_deg=4.0, seed=3)
     for x, y in ((r.rest_px, d.rest_px), (r.xy_px, d.xy_px), (r.corners_px, d.corners_px)):
         assert np.array_equal(x, y)
     assert r.xy_px.dtype == r.corners_px.dtype == np.float32
@@ -84,35 +79,35 @@ def radial(m, centre):
     return (u * v).sum(1) / np.linalg.norm(v, axis=1)
 
 
-def centre_px(prof, cmm):
-    h, w = prof.shape
-    return np.array([(w - 1) / 2 + cmm[0] / prof.image.mm_per_px, (h - 1) / 2 + cmm[1] / prof.image.mm_per_px])
+def centre_px(vitac, cmm):
+    h, w = vitac.shape
+    return np.array([(w - 1) / 2 + cmm[0] / vitac.image.mm_per_px, (h - 1) / 2 + cmm[1] / vitac.image.mm_per_px])
 
 
 @pytest.mark.parametrize("fid", FIDS, ids=ids)
-def test_press_dilates_outward(prof, imprint, fid):
-    m = displace(prof, fid, imprint)
-    c = centre_px(prof, (0.8, -0.4))
+def test_press_dilates_outward(vitac, imprint, fid):
+    m = displace(vitac, fid, imprint)
+    c = centre_px(vitac, (0.8, -0.4))
     rad = radial(m, c)
-    near = np.linalg.norm(m.rest_px - c, axis=1) < 3 * prof.gel.thickness_mm / prof.image.mm_per_px
+    near = np.linalg.norm(m.rest_px - c, axis=1) < 3 * vitac.gel.thickness_mm / vitac.image.mm_per_px
     assert rad[near].mean() > 0.2  # px, outward
     assert rad.mean() > 0
     # A harder press moves them further.
-    deeper = press(indenters.sphere(6.0, prof, center_mm=(0.8, -0.4)), prof, BASE, force_n=0.6)
-    assert radial(displace(prof, fid, deeper), c)[near].mean() > rad[near].mean()
+    deeper = press(indenters.sphere(6.0, vitac, center_mm=(0.8, -0.4)), vitac, BASE, force_n=0.6)
+    assert radial(displace(vitac, fid, deeper), c)[near].mean() > rad[near].mean()
 
 
 @pytest.mark.parametrize("fid", FIDS, ids=ids)
-def test_shear_follows_direction_and_decays(prof, imprint, fid):
+def test_shear_follows_direction_and_decays(vitac, imprint, fid):
     s = np.array([0.15, -0.1])
-    base = displace(prof, fid, imprint)
-    m = displace(prof, fid, imprint, shear_mm=tuple(s))
+    base = displace(vitac, fid, imprint)
+    m = displace(vitac, fid, imprint, shear_mm=tuple(s))
     u = (m.xy_px - base.xy_px).astype(np.float64)
     mean = u.mean(0)
     assert np.dot(mean, s) > 0.9 * np.linalg.norm(mean) * np.linalg.norm(s)  # same direction
     mag = np.linalg.norm(u, axis=1)
-    dist = np.linalg.norm(m.rest_px - centre_px(prof, (0.8, -0.4)), axis=1)
-    s_px = np.linalg.norm(s) / prof.image.mm_per_px
+    dist = np.linalg.norm(m.rest_px - centre_px(vitac, (0.8, -0.4)), axis=1)
+    s_px = np.linalg.norm(s) / vitac.image.mm_per_px
     assert mag[np.argmin(dist)] > 0.5 * s_px  # the marker nearest the contact moves most of it
     assert mag[dist > dist.max() * 0.8].max() < 0.1 * s_px  # and far ones barely
 
@@ -127,42 +122,42 @@ def curl(m):
 
 @pytest.mark.parametrize("fid", FIDS, ids=ids)
 @pytest.mark.parametrize("twist", [6.0, -6.0])
-def test_twist_curl_has_the_twist_sign(prof, fid, twist):
-    imp = press(indenters.sphere(10.0, prof), prof, BASE, force_n=0.5)
-    base = displace(prof, fid, imp)
-    m = displace(prof, fid, imp, twist_deg=twist)
+def test_twist_curl_has_the_twist_sign(vitac, fid, twist):
+    imp = press(indenters.sphere(10.0, vitac), vitac, BASE, force_n=0.5)
+    base = displace(vitac, fid, imp)
+    m = displace(vitac, fid, imp, twist_deg=twist)
     rot = Markers(base.xy_px, m.xy_px, m.corners_px)
     assert np.sign(curl(rot)) == np.sign(twist)
     # Corners turn with the squares: the top edge tilts by the twist near the centre.
-    i = int(np.argmin(np.linalg.norm(m.rest_px - centre_px(prof, (0, 0)), axis=1)))
+    i = int(np.argmin(np.linalg.norm(m.rest_px - centre_px(vitac, (0, 0)), axis=1)))
     e = m.corners_px[i, 1] - m.corners_px[i, 0]
     assert np.sign(np.degrees(np.arctan2(e[1], e[0]))) == np.sign(twist)
 
 
 @pytest.mark.parametrize("fid", FIDS, ids=ids)
-def test_deterministic_and_float32(prof, imprint, fid):
-    a = displace(prof, fid, imprint, shear_mm=(0.1, 0.0), twist_deg=2.0, seed=5)
-    b = displace(prof, fid, imprint, shear_mm=(0.1, 0.0), twist_deg=2.0, seed=5)
+def test_deterministic_and_float32(vitac, imprint, fid):
+    a = displace(vitac, fid, imprint, shear_mm=(0.1, 0.0), twist_deg=2.0, seed=5)
+    b = displace(vitac, fid, imprint, shear_mm=(0.1, 0.0), twist_deg=2.0, seed=5)
     assert np.array_equal(a.xy_px, b.xy_px) and np.array_equal(a.corners_px, b.corners_px)
     assert a.xy_px.dtype == np.float32 and a.corners_px.shape == (len(a), 4, 2)
     assert np.isfinite(a.corners_px).all()
 
 
 @pytest.mark.parametrize("fid", FIDS, ids=ids)
-def test_float64_depth_bounded_difference(prof, imprint, fid):
+def test_float64_depth_bounded_difference(vitac, imprint, fid):
     d64 = dataclasses.replace(imprint, depth_mm=imprint.depth_mm.astype(np.float64))
-    a = displace(prof, fid, imprint)
-    b = displace(prof, fid, d64)
+    a = displace(vitac, fid, imprint)
+    b = displace(vitac, fid, d64)
     assert np.abs(a.xy_px - b.xy_px).max() < 1e-3  # px
 
 
-def test_custom_rest_and_bad_input(prof, imprint):
+def test_custom_rest_and_bad_input(vitac, imprint):
     rest = np.array([[100.0, 100.0], [480.0, 360.0]], np.float32)
-    m = displace(prof, BASE, imprint, rest=rest)
+    m = displace(vitac, BASE, imprint, rest=rest)
     assert m.rest_px.shape == (2, 2) and np.array_equal(m.rest_px, rest)
     with pytest.raises(GelsimError):
-        displace(prof, BASE, imprint, rest=np.zeros((3, 3)))
+        displace(vitac, BASE, imprint, rest=np.zeros((3, 3)))
     with pytest.raises(GelsimError):
-        displace(prof, BASE, imprint, shear_mm=(np.nan, 0.0))
+        displace(vitac, BASE, imprint, shear_mm=(np.nan, 0.0))
     with pytest.raises(GelsimError):
-        displace(prof.with_resolution(480), BASE, imprint)
+        displace(vitac.with_resolution(480), BASE, imprint)

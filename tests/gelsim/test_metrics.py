@@ -9,7 +9,7 @@ import pytest
 
 from gelsim import metrics
 from gelsim.errors import GelsimError
-from gelsim.metrics import mse, psnr, ssim
+from gelsim.metrics import mse, psnr, ssim, ssim_map
 
 
 def _smooth_image(seed=0, shape=(120, 160, 3)):
@@ -79,3 +79,14 @@ def test_psnr():
     assert psnr(mse(a, a + 5)) == pytest.approx(psnr(25.0))
     with pytest.raises(GelsimError, match="shapes"):
         mse(a, a[:2])
+
+
+def test_ssim_is_the_valid_region_of_the_map():
+    rng = np.random.default_rng(3)
+    a = rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)
+    b = np.clip(a + rng.normal(0, 25, a.shape), 0, 255).astype(np.uint8)
+    m = ssim_map(a, b)
+    assert m.shape == a.shape and m.dtype == np.float64
+    assert ssim(a, b) == pytest.approx(m[5:-5, 5:-5].mean(), rel=1e-12)
+    assert m[5:-5, 5:-5].mean() != pytest.approx(m.mean(), rel=1e-6)    # the border differs
+    np.testing.assert_allclose(ssim_map(a[:4, :4], a[:4, :4]), 1.0)     # no size limit on the map

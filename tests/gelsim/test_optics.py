@@ -11,14 +11,8 @@ import pytest
 from gelsim.errors import GelsimError
 from gelsim.optics import Renderer, available_backends, check_depth, render
 from gelsim.optics.field import led_position_mm
-from gelsim.sensor import load_profile
 
 SMALL_W = 320  # 320x240: the same sensor at a third of the resolution, for speed
-
-
-@pytest.fixture(scope="module")
-def vitac():
-    return load_profile("vitac")
 
 
 @pytest.fixture(scope="module")

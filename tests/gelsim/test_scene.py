@@ -7,14 +7,8 @@ import pytest
 from gelsim.errors import GelsimError
 from gelsim.fabrics import load_catalog
 from gelsim.motion import sample_motion
-from gelsim.sensor import load_profile
 from gelsim.scene import (PHYSICS_MM_PER_PX, Cylinder, FabricObject, HeightPatch, Sphere, TouchedObject,
                           as_object, physics_surface, travel_patch)
-
-
-@pytest.fixture(scope="module")
-def profile():
-    return load_profile("vitac")
 
 
 @pytest.fixture(scope="module")
@@ -91,20 +85,20 @@ def test_tilt_raises_the_leaning_side():
     assert img[5, 10] - img[5, 0] == pytest.approx(math.tan(math.radians(2.0)) * 1.0, rel=1e-4)
 
 
-def test_travel_patch_covers_the_motion(fabric, profile):
+def test_travel_patch_covers_the_motion(fabric, vitac):
     m = sample_motion("slip", 3)
-    p = travel_patch(FabricObject(fabric), m, profile, 0.1, seed=3)
+    p = travel_patch(FabricObject(fabric), m, vitac, 0.1, seed=3)
     xmin, ymin, xmax, ymax = m.travel_bounds_mm()
-    r = 0.5 * math.hypot(*profile.field_mm)
+    r = 0.5 * math.hypot(*vitac.field_mm)
     x0, y0 = p.origin_mm
     h, w = p.heights_mm.shape
     assert x0 <= xmin - r and y0 <= ymin - r
     assert x0 + (w - 1) * 0.1 >= xmax + r and y0 + (h - 1) * 0.1 >= ymax + r
 
 
-def test_physics_surface_on_its_grid(fabric, profile):
+def test_physics_surface_on_its_grid(fabric, vitac):
     m = sample_motion("press", 1)
-    s = physics_surface(FabricObject(fabric), m, profile, seed=1)
+    s = physics_surface(FabricObject(fabric), m, vitac, seed=1)
     ox, oy = s.origin_mm
     # snapped: the origin is a whole number of physics cells, heights >= 0
     assert ox / PHYSICS_MM_PER_PX == pytest.approx(round(ox / PHYSICS_MM_PER_PX), abs=1e-6)

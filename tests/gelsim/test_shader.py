@@ -62,18 +62,11 @@ def test_check_names_what_breaks_the_contract():
         def delta(self, depth_mm, margin_px=0):
             return None
 
-    with pytest.raises(GelsimError) as e:
-        sh.check_shader(NotAShader, "x")
-    assert "derive it from Shader" in _one_line(e)
-    with pytest.raises(GelsimError) as e:
-        sh.check_shader(NoDelta, "x")
-    assert "does not implement delta" in _one_line(e)
-    with pytest.raises(GelsimError) as e:
-        sh.check_shader(OldDelta, "x")
-    assert "OldDelta.delta(self, depth_mm)" in _one_line(e)
-    with pytest.raises(GelsimError) as e:
-        sh.check_shader(Nameless, "x")
-    assert "has no name" in _one_line(e)
+    for cls, what in ((NotAShader, "derive it from Shader"), (NoDelta, "does not implement delta"),
+                      (OldDelta, "OldDelta.delta(self, depth_mm)"), (Nameless, "has no name")):
+        with pytest.raises(GelsimError) as e:
+            sh.check_shader(cls, "x")
+        assert what in _one_line(e)
     assert sh.check_shader(Box, "x") is Box
 
 

@@ -17,18 +17,13 @@ from gelsim.sensor import UnitVariationSpec, load_profile
 from gelsim.units import draw_unit, unit_record, variation_ranges
 
 
-@pytest.fixture(scope="module")
-def vitac():
-    return load_profile("vitac").with_resolution(320)
-
-
-def test_same_seed_same_unit_other_seed_other_unit(vitac):
-    a, b, c = draw_unit(vitac, 5), draw_unit(vitac, 5), draw_unit(vitac, 6)
+def test_same_seed_same_unit_other_seed_other_unit(vitac320):
+    a, b, c = draw_unit(vitac320, 5), draw_unit(vitac320, 5), draw_unit(vitac320, 6)
     assert a == b and a.name == "vitac#unit5"
     assert unit_record(a) != unit_record(c)
     # every varied parameter moves for some seed (none is stuck at the model's value)
-    recs = [unit_record(draw_unit(vitac, s)) for s in range(20)]
-    base = unit_record(vitac)
+    recs = [unit_record(draw_unit(vitac320, s)) for s in range(20)]
+    base = unit_record(vitac320)
     for key in ("gel_thickness_mm", "gel_young_modulus_mpa", "marker_size_mm", "marker_pitch_mm", "read_sigma_dn",
                 "blur_sigma_px", "background_gain", "shading_gain_dn", "marker_missing_fraction",
                 "gel_dome_radius_mm"):
@@ -36,11 +31,11 @@ def test_same_seed_same_unit_other_seed_other_unit(vitac):
     assert any(r["lights"][0]["azimuth_deg"] != base["lights"][0]["azimuth_deg"] for r in recs)
 
 
-def test_draws_stay_in_the_documented_ranges(vitac):
-    v = vitac.unit_variation
-    base = unit_record(vitac)
+def test_draws_stay_in_the_documented_ranges(vitac320):
+    v = vitac320.unit_variation
+    base = unit_record(vitac320)
     for seed in range(200):
-        r = unit_record(draw_unit(vitac, seed))
+        r = unit_record(draw_unit(vitac320, seed))
         for lt, lb in zip(r["lights"], base["lights"]):
             assert abs(lt["intensity"] / lb["intensity"] - 1) <= v.led_intensity_frac + 1e-9
             assert abs(lt["azimuth_deg"] - lb["azimuth_deg"]) <= v.led_azimuth_deg + 1e-9
@@ -60,26 +55,26 @@ def test_draws_stay_in_the_documented_ranges(vitac):
         assert abs(r["background_gain"] - 1) <= v.exposure_frac + 1e-9
 
 
-def test_no_section_or_zero_ranges_change_nothing(vitac):
+def test_no_section_or_zero_ranges_change_nothing(vitac320):
     r15 = load_profile("gelsight-r15")
     assert r15.unit_variation is None and draw_unit(r15, 3) is r15
-    zero = dataclasses.replace(vitac, unit_variation=UnitVariationSpec())
+    zero = dataclasses.replace(vitac320, unit_variation=UnitVariationSpec())
     drawn = draw_unit(zero, 3)
     assert dataclasses.replace(drawn, name=zero.name) == zero
     with pytest.raises(GelsimError, match="integer"):
-        draw_unit(vitac, 1.5)
-    assert set(variation_ranges(vitac)) == {f.name for f in dataclasses.fields(UnitVariationSpec)}
+        draw_unit(vitac320, 1.5)
+    assert set(variation_ranges(vitac320)) == {f.name for f in dataclasses.fields(UnitVariationSpec)}
     assert variation_ranges(r15) is None
     # a flat gel stays flat whatever its unit draws
-    flat = dataclasses.replace(vitac, gel=dataclasses.replace(vitac.gel, dome_radius_mm=0.0))
+    flat = dataclasses.replace(vitac320, gel=dataclasses.replace(vitac320.gel, dome_radius_mm=0.0))
     assert all(draw_unit(flat, s).gel.dome_radius_mm == 0.0 for s in range(5))
 
 
-def test_a_unit_renders_differently_and_deterministically(vitac):
-    d = ball_depth(vitac, (160.0, 120.0), 25.0, 4.0)
-    base = Renderer(vitac).render(d, None, noise=False).astype(float)
-    u1 = Renderer(draw_unit(vitac, 11)).render(d, None, noise=False).astype(float)
-    u1b = Renderer(draw_unit(vitac, 11)).render(d, None, noise=False).astype(float)
+def test_a_unit_renders_differently_and_deterministically(vitac320):
+    d = ball_depth(vitac320, (160.0, 120.0), 25.0, 4.0)
+    base = Renderer(vitac320).render(d, None, noise=False).astype(float)
+    u1 = Renderer(draw_unit(vitac320, 11)).render(d, None, noise=False).astype(float)
+    u1b = Renderer(draw_unit(vitac320, 11)).render(d, None, noise=False).astype(float)
     np.testing.assert_array_equal(u1, u1b)
     assert np.abs(u1 - base).mean() > 0.5
 
@@ -110,13 +105,13 @@ def test_channel_gain_and_rotation_of_a_calibrated_table():
     np.testing.assert_allclose(b[..., 0], a[..., 0], atol=1e-3)
 
 
-def test_missing_markers_and_background_gain(vitac):
-    n = len(marker_grid(vitac))
-    some = dataclasses.replace(vitac, markers=dataclasses.replace(vitac.markers, missing_fraction=0.1))
+def test_missing_markers_and_background_gain(vitac320):
+    n = len(marker_grid(vitac320))
+    some = dataclasses.replace(vitac320, markers=dataclasses.replace(vitac320.markers, missing_fraction=0.1))
     kept = marker_grid(some, seed=4)
     assert len(kept) == n - round(0.1 * n)
     assert len(marker_grid(some, seed=4)) == len(kept) and np.array_equal(marker_grid(some, seed=4), kept)
-    bright = dataclasses.replace(vitac, background=dataclasses.replace(vitac.background, gain=1.2))
-    np.testing.assert_allclose(Renderer(bright).background_float(), 1.2 * Renderer(vitac).background_float(),
+    bright = dataclasses.replace(vitac320, background=dataclasses.replace(vitac320.background, gain=1.2))
+    np.testing.assert_allclose(Renderer(bright).background_float(), 1.2 * Renderer(vitac320).background_float(),
                                rtol=1e-5)
-    assert math.isclose(vitac.background.gain, 1.0)
+    assert math.isclose(vitac320.background.gain, 1.0)

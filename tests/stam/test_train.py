@@ -31,15 +31,22 @@ def test_tiny_end_to_end_training_beats_chance(synth, tmp_path):
     assert sum(sum(r) for r in val["confusion"]) == val["count"] == 16
 
 
-def test_resume_continues_from_checkpoint(synth, tmp_path):
-    kw = {"model": "cnn_sa", "freeze_backbone": True, "seed": 3}
+def _resume_matches_straight(synth, tmp_path, **kw):
+    """Train 4 epochs in one run (tmp_path/a) and 2 + 2 with a resume (tmp_path/b); the last
+    checkpoints' weights must agree. Returns both checkpoints."""
     straight = train(_cfg(synth, tmp_path / "a", epochs=4, **kw), log=None)
     train(_cfg(synth, tmp_path / "b", epochs=2, **kw), log=None)
     resumed = train(_cfg(synth, tmp_path / "b", epochs=4, **kw), resume=True, log=None)
     a, b = load_checkpoint(straight["last"]), load_checkpoint(resumed["last"])
-    assert a["epoch"] == b["epoch"] == 4
     for k in a["model"]:
         torch.testing.assert_close(a["model"][k], b["model"][k], rtol=1e-5, atol=1e-6)
+    return a, b
+
+
+def test_resume_continues_from_checkpoint(synth, tmp_path):
+    kw = {"model": "cnn_sa", "freeze_backbone": True, "seed": 3}
+    a, b = _resume_matches_straight(synth, tmp_path, **kw)
+    assert a["epoch"] == b["epoch"] == 4
     with open(tmp_path / "b" / "log.csv") as f:
         assert [int(r["epoch"]) for r in csv.DictReader(f)] == [1, 2, 3, 4]
     assert json.loads((tmp_path / "b" / "config.json").read_text())["epochs"] == 4
@@ -55,13 +62,8 @@ def test_resume_uses_the_checkpoints_frozen_backbone(synth, tmp_path):
     torch.manual_seed(123)
     backbone = models.build("cnn", 3, 4, width=0.25, image_size=96).backbone
     torch.save({"backbone": backbone.state_dict()}, tmp_path / "backbone.pt")
-    kw = {"model": "cnn", "freeze_backbone": True, "seed": 3, "pretrained": str(tmp_path / "backbone.pt")}
-    straight = train(_cfg(synth, tmp_path / "a", epochs=4, **kw), log=None)
-    train(_cfg(synth, tmp_path / "b", epochs=2, **kw), log=None)
-    resumed = train(_cfg(synth, tmp_path / "b", epochs=4, **kw), resume=True, log=None)
-    a, b = load_checkpoint(straight["last"]), load_checkpoint(resumed["last"])
-    for k in a["model"]:
-        torch.testing.assert_close(a["model"][k], b["model"][k], rtol=1e-5, atol=1e-6)
+    _resume_matches_straight(synth, tmp_path, model="cnn", freeze_backbone=True, seed=3,
+                             pretrained=str(tmp_path / "backbone.pt"))
 
 
 def test_resume_with_more_epochs_follows_the_longer_cosine(synth, tmp_path):

@@ -1,0 +1,318 @@
+"""A GelSight sensor on a gel pad of any MuJoCo scene: one tactile frame per ``render()``.
+
+The user names a ``box`` or ``cylinder`` geom of their model as the gel pad. The gel's surface is
+the geom's +z face (the face at ``+size[2]`` of a box, the cap at ``+size[1]`` of a cylinder) and
+the gel looks along the geom's +z: the sensor frame is the geom's frame moved onto that face, image
+columns along the geom's +x, rows along its +y (``docs/mujoco.md``). Per frame:
+
+1. **Forces** from MuJoCo's contacts on the pad (``mj_contactForce``): the normal force pressing the
+   gel and the in-plane force of the objects on it, N, sensor frame.
+2. **Geometry** from MuJoCo's ray casts (:class:`gelsim.mujoco.rays.PadRays`): the gap between the
+   gel plane and whatever lies in front of it, on the physics grid of the dataset pipeline
+   (:data:`gelsim.scene.PHYSICS_MM_PER_PX`), resampled to the imprint grid.
+3. **Imprint** by the pipeline's gel model (:func:`gelsim.gel.press`) at MuJoCo's normal force.
+4. **Shear and twist** of the gel surface relative to the pad, the dataset pipeline's stick/slip
+   model (:mod:`gelsim.contact`): the gel's shear and torsion springs (:func:`gelsim.contact.gel_stiffness`)
+   carry the tangential load MuJoCo puts on the pad plus the pad's motion relative to the touched
+   object since first contact, up to Coulomb's limit ``mu N`` (``mu N r_eff`` in torsion); past it
+   the gel slips and stays at the limit.
+5. **Markers** (:func:`gelsim.markers.displace`) and the **camera image** (:class:`gelsim.optics.Renderer`).
+
+Frames without a contact force on the pad skip steps 2-4: they are the flat gel (exactly
+:meth:`GelSightSensor.background` without noise). MuJoCo runs in SI units; everything the sensor
+returns is in mm, N, degrees and px, like the rest of gelsim.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from ..contact import gel_stiffness
+from ..errors import GelsimError
+from ..fidelity import Fidelity, get_fidelity
+from ..gel import Imprint, gel_sag_mm, press, work_shape
+from ..markers import displace, marker_grid, rest_markers
+from ..optics import Renderer
+from ..scene import PHYSICS_MM_PER_PX, HeightPatch
+from ..sensor import SensorProfile, load_profile
+from .rays import MM, PadRays
+
+#: Geom types that can be a gel pad, with the distance of their flat +z face from the geom's centre
+#: (index into ``geom_size``).
+SUPPORTED_PAD_TYPES = {"box": 2, "cylinder": 1}
+# How deep below the first touch the ray scene's heights are kept, beyond the gel's own reach
+# (max_indentation_mm plus the dome's sag): deeper surface cannot reach the gel; two ray cells of
+# slack keep the cut off the imprint's edge.
+_REACH_SLACK_CELLS = 2.0
+
+
+@dataclass(frozen=True)
+class TactileFrame:
+    """One tactile frame. Sensor frame: x along image columns, y along rows, z out of the gel.
+
+    rgb: uint8 (H, W, 3) camera image. markers_xy_px, markers_rest_px: float32 (N, 2) marker centres,
+    px (x = column, y = row; N = 0 for a profile without markers). normal_force_n: force pressing the
+    gel, N (>= 0). tangential_force_n: float64 (2,) in-plane force of the objects on the gel, N.
+    contact_mask: bool (H, W). depth_mm: float32 (H, W) imprint, mm (>= 0). shear_mm: float64 (2,)
+    gel surface displacement relative to the pad, mm. twist_deg: its rotation, degrees (+x towards
+    +y). in_contact: a contact force acts on the pad. slipping: the gel reached Coulomb's limit and
+    slides. time_s: MuJoCo's ``data.time``, s.
+    """
+    rgb: np.ndarray
+    markers_xy_px: np.ndarray
+    markers_rest_px: np.ndarray
+    normal_force_n: float
+    tangential_force_n: np.ndarray
+    contact_mask: np.ndarray
+    depth_mm: np.ndarray
+    shear_mm: np.ndarray
+    twist_deg: float
+    in_contact: bool
+    slipping: bool
+    time_s: float
+
+
+def _geom_names(model: mujoco.MjModel, limit: int = 12) -> str:
+    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in range(model.ngeom)]
+    names = [n for n in names if n]
+    more = f" (+{len(names) - limit} more)" if len(names) > limit else ""
+    return (", ".join(names[:limit]) + more) if names else "none: the model's geoms have no names"
+
+
+def find_pad(model: mujoco.MjModel, pad: str) -> tuple[int, float]:
+    """The pad geom's id and the distance of its gel face from its centre, m; GelsimError for a
+    name the model lacks or a geom type without a flat +z face."""
+    if not isinstance(pad, str) or not pad:
+        raise GelsimError(f"pad {pad!r} is not a geom name; give the name of the gel pad's geom in the model")
+    gid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, pad)
+    if gid < 0:
+        raise GelsimError(f"no geom named {pad!r} in the model; name one of its geoms as the pad "
+                          f"({_geom_names(model)}), or add one with gelsim.mujoco.attach")
+    gtype = mujoco.mjtGeom(int(model.geom_type[gid])).name.removeprefix("mjGEOM_").lower()
+    if gtype not in SUPPORTED_PAD_TYPES:
+        raise GelsimError(f"pad geom {pad!r} is a {gtype}; a gel pad needs a flat face: make it a "
+                          f"{' or '.join(SUPPORTED_PAD_TYPES)} geom (its +z face is the gel)")
+    return gid, float(model.geom_size[gid][SUPPORTED_PAD_TYPES[gtype]])
+
+
+class GelSightSensor:
+    """A GelSight sensor on the geom ``pad`` of ``model`` (see the module docstring).
+
+    ``profile``: a shipped profile name (``gelsim sensors list``), a .toml path or a SensorProfile;
+    ``fidelity``: ``fast``, ``balanced`` or ``reference`` (imprint model, markers, renderer);
+    ``resolution``: (width, height) px of the images (default the profile's; same field in mm);
+    ``seed``: the sensor's background, marker jitter and camera-noise stream; ``noise``: camera
+    noise on (True) or off. Frames depend only on the scene's state, the calls made so far since the
+    last :meth:`reset` and these arguments: the same run gives the same frames.
+
+    The sensor reads ``data`` at each :meth:`render`; it never changes the model or the data.
+    """
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, pad: str, *,
+                 profile: str | Path | SensorProfile = "gelsight-mini", fidelity: str | Fidelity = "fast",
+                 resolution: tuple[int, int] | None = None, seed: int = 0, noise: bool = True):
+        if not isinstance(model, mujoco.MjModel) or not isinstance(data, mujoco.MjData):
+            raise GelsimError("GelSightSensor needs a mujoco.MjModel and its mujoco.MjData; "
+                              "pass (model, data) of the running simulation")
+        self.model, self.data, self.pad_name = model, data, pad
+        self.pad_id, self.face_offset_m = find_pad(model, pad)
+        prof = profile if isinstance(profile, SensorProfile) else load_profile(profile)
+        if resolution is not None:
+            try:
+                w, h = (int(v) for v in resolution)
+            except (TypeError, ValueError):
+                raise GelsimError(f"resolution {resolution!r} is not (width, height) in px; give e.g. (320, 240)") from None
+            prof = prof.with_resolution(w, h)
+        self.profile = prof
+        self.fidelity = get_fidelity(fidelity)
+        self.seed, self.noise = int(seed), bool(noise)
+        # Rays start at the pad's back face: anything sunk into the pad (MuJoCo's soft contact) is seen.
+        thickness_mm = 2.0 * self.face_offset_m / MM
+        self.rays = PadRays(model, self.pad_id, self.face_offset_m, prof.field_mm, PHYSICS_MM_PER_PX, thickness_mm)
+        if self.rays.geoms.size == 0:
+            raise GelsimError(f"no geom of the model can ever touch pad {pad!r} (contype/conaffinity bits, "
+                              "parent-child filtering), so the sensor would see no contact at all; give the pad "
+                              "and the objects matching contype/conaffinity (MuJoCo's default 1/1 does)")
+        self.renderer = Renderer(prof, self.fidelity.render_backend, supersample=self.fidelity.supersample,
+                                 seed=self.seed)
+        self._rest = marker_grid(prof, seed=self.seed) if prof.markers.enabled else np.zeros((0, 2), np.float32)
+        self._flat_markers = rest_markers(prof, seed=self.seed) if prof.markers.enabled else None
+        self._background = self.renderer.render(None, self._flat_markers, noise=False)
+        k_shear, k_tors, r_eff = gel_stiffness(prof)
+        self._k_shear_n_mm = k_shear * MM          # N per mm of shear
+        self._k_tors_nmm_rad = k_tors / MM         # N mm per rad
+        self._r_eff_mm = r_eff / MM
+        sag = gel_sag_mm(prof)
+        self._reach_mm = (prof.gel.max_indentation_mm + (0.0 if sag is None else float(sag.max()))
+                          + _REACH_SLACK_CELLS * PHYSICS_MM_PER_PX)
+        self._work = work_shape(prof, self.fidelity.imprint_scale)
+        self.timings_ms: dict[str, float] = {}
+        self.reset()
+
+    # -- state -------------------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget the contact history (stick anchor, slip, warm start) and restart the noise stream."""
+        self._anchor = None      # (body, pad position and rotation in the body's frame)
+        self._slip_mm = np.zeros(2)
+        self._slip_deg = 0.0
+        self._prev: Imprint | None = None
+        self._frame = 0
+
+    def background(self) -> np.ndarray:
+        """The flat gel with its markers at rest, no noise: uint8 (H, W, 3) (a copy)."""
+        return self._background.copy()
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image shape (H, W), px."""
+        return self.profile.shape
+
+    # -- contacts ----------------------------------------------------------------------------------
+    def pad_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """The pad's gel-face centre (m, world) and rotation (3x3, columns = sensor x, y, z in world)."""
+        R = self.data.geom_xmat[self.pad_id].reshape(3, 3)
+        return self.data.geom_xpos[self.pad_id] + R[:, 2] * self.face_offset_m, R
+
+    def contact_forces(self):
+        """MuJoCo's contacts on the pad: ``(normal_n, tangential_n (2,), torque_nmm, mu, body)`` with
+        the force and the torque about the normal (N mm, about the contacts' force-weighted centre)
+        that the touching objects exert on the gel, sensor frame; ``body`` the body pressing
+        hardest. None when nothing presses the pad."""
+        m, d = self.model, self.data
+        n = d.ncon
+        if n == 0:
+            return None
+        geom = d.contact.geom[:n]
+        idx = np.flatnonzero((geom[:, 0] == self.pad_id) | (geom[:, 1] == self.pad_id))
+        if idx.size == 0:
+            return None
+        face, R = self.pad_frame()
+        f6 = np.zeros(6)
+        forces = np.zeros((idx.size, 3))
+        torsion = np.zeros(3)                          # torsional friction on the gel, world, N m
+        for k, i in enumerate(idx):
+            mujoco.mj_contactForce(m, d, int(i), f6)
+            frame = d.contact.frame[i].reshape(3, 3)
+            fw = frame.T @ f6[:3]                      # on geom2, world
+            sign = 1.0 if geom[i, 1] == self.pad_id else -1.0
+            forces[k] = sign * fw
+            if d.contact.dim[i] >= 4:                  # torsional friction: a torque about the normal
+                torsion += sign * f6[3] * frame[0]
+        local = forces @ R                             # sensor frame
+        normal = -local[:, 2]                          # the objects push into the gel, along -z
+        total = float(normal.sum())
+        if not total > 0.0:
+            return None
+        pos = (d.contact.pos[idx] - face) @ R / MM     # contact points, sensor frame, mm
+        w = np.maximum(normal, 0.0)
+        centre = (w[:, None] * pos).sum(0) / max(float(w.sum()), 1e-12)
+        rel = pos - centre
+        torque = float((rel[:, 0] * local[:, 1] - rel[:, 1] * local[:, 0]).sum()) + float(torsion @ R[:, 2]) / MM
+        other = np.where(geom[idx, 0] == self.pad_id, geom[idx, 1], geom[idx, 0])
+        body = int(m.geom_bodyid[other[int(np.argmax(normal))]])
+        mu = float(d.contact.friction[idx[int(np.argmax(normal))], 0])
+        return total, local[:, :2].sum(0), torque, mu, body
+
+    def _stick_slip(self, body: int, normal_n: float, tang_n: np.ndarray, torque_nmm: float,
+                    mu: float) -> tuple[np.ndarray, float, bool]:
+        """Gel shear (mm, (2,)) and twist (degrees) with the stick/slip model; see the module docstring."""
+        d = self.data
+        p_pad, R_pad = self.pad_frame()
+        p_b, R_b = d.xpos[body], d.xmat[body].reshape(3, 3)
+        if self._anchor is None or self._anchor[0] != body:
+            self._anchor = (body, R_b.T @ (p_pad - p_b), R_b.T @ R_pad)
+            self._slip_mm[:] = 0.0
+            self._slip_deg = 0.0
+        _, p_rel, R_rel = self._anchor
+        p_a, R_a = p_b + R_b @ p_rel, R_b @ R_rel      # where the pad would be had it stuck to the body
+        moved = R_pad.T @ (p_pad - p_a) / MM           # pad's motion over the object, sensor frame, mm
+        turn = R_a.T @ R_pad
+        turned = math.degrees(math.atan2(turn[1, 0], turn[0, 0]))
+        # The gel surface stays on the object: relative to the pad it moves the other way.
+        shear = tang_n / self._k_shear_n_mm - moved[:2] + self._slip_mm
+        twist = math.degrees(torque_nmm / self._k_tors_nmm_rad) - turned + self._slip_deg
+        slipping = False
+        lim = mu * normal_n / self._k_shear_n_mm
+        size = float(np.hypot(*shear))
+        if size > lim:
+            new = shear * (lim / size)
+            self._slip_mm += new - shear
+            shear, slipping = new, True
+        lim_t = math.degrees(mu * normal_n * self._r_eff_mm / self._k_tors_nmm_rad)
+        if abs(twist) > lim_t:
+            new_t = math.copysign(lim_t, twist)
+            self._slip_deg += new_t - twist
+            twist, slipping = new_t, True
+        return shear, twist, slipping
+
+    # -- the frame ---------------------------------------------------------------------------------
+    def protrusion_mm(self, gaps_mm: np.ndarray) -> np.ndarray:
+        """The imprint grid's protrusion map (float32, :func:`gelsim.gel.work_shape`, mm) from a ray
+        gap map: how far each point stands out towards the gel relative to a plane ``reach`` below
+        the first touch (deeper surface cannot reach the gel)."""
+        g = np.where(np.isfinite(gaps_mm), gaps_mm, np.float32(np.inf))
+        top = float(g.min())
+        prot = np.maximum(np.float32(top + self._reach_mm) - g, 0.0).astype(np.float32)
+        patch = HeightPatch(prot, self.rays.origin_mm, self.rays.cell_mm)
+        h, w = self._work
+        fw = self.profile.field_mm[0]
+        return np.maximum(patch.sample((h, w), fw / w, 0.0, 0.0, 0.0), 0.0)
+
+    def render(self) -> TactileFrame:
+        """The tactile frame of the scene's current state (``data`` as it is now)."""
+        clock = time.thread_time
+        t0 = t = clock()
+        times: dict[str, float] = {}
+
+        def lap(stage: str) -> None:
+            nonlocal t
+            now = clock()
+            times[stage] = (now - t) * 1e3
+            t = now
+
+        prof = self.profile
+        rng = np.random.default_rng([self.seed, self._frame])
+        self._frame += 1
+        found = self.contact_forces()
+        lap("forces")
+        gaps = None
+        if found is not None:
+            gaps = self.rays.gaps_mm(self.data)
+            lap("rays")
+            if not np.isfinite(gaps).any():   # pressed by something outside the field: no imprint
+                found = None
+        if found is None:
+            self._anchor, self._prev = None, None
+            rgb = (self.renderer.render(None, self._flat_markers, seed=rng) if self.noise
+                   else self._background.copy())
+            lap("render")
+            h, w = prof.shape
+            self.timings_ms = {**times, "total": (clock() - t0) * 1e3}
+            return TactileFrame(rgb, self._rest.copy(), self._rest.copy(), 0.0, np.zeros(2), np.zeros((h, w), bool),
+                                np.zeros((h, w), np.float32), np.zeros(2), 0.0, False, False, float(self.data.time))
+        normal, tang, torque, mu, body = found
+        prot = self.protrusion_mm(gaps)
+        lap("geometry")
+        imprint = press(prot, prof, self.fidelity, force_n=normal, warm=self._prev)
+        self._prev = imprint
+        lap("imprint")
+        shear, twist, slipping = self._stick_slip(body, normal, tang, torque, mu)
+        markers = (displace(prof, self.fidelity, imprint, shear_mm=tuple(shear), twist_deg=twist, rest=self._rest)
+                   if prof.markers.enabled else None)
+        lap("markers")
+        rgb = self.renderer.render(imprint.depth_mm, markers, seed=rng, noise=self.noise)
+        lap("render")
+        self.timings_ms = {**times, "total": (clock() - t0) * 1e3}
+        xy = self._rest.copy() if markers is None else markers.xy_px
+        return TactileFrame(rgb, xy, self._rest.copy(), float(normal), np.asarray(tang, float), imprint.contact_mask,
+                            imprint.depth_mm, np.asarray(shear, float), float(twist), True, bool(slipping),
+                            float(self.data.time))
+
+    def close(self) -> None:
+        """Free the renderer's resources (a GL context for the pyrender backend)."""
+        self.renderer.close()
