@@ -1,0 +1,181 @@
+"""``gelsim generate --ray``: the same bytes as the local pool, on a real two-node Ray cluster
+(tests/conftest.py), through a killed worker and a resume; and its bad input.
+
+The tests that start a cluster are marked ``cluster`` (``make test-cluster``); the others need at
+most Ray importable and run in the default suite.
+"""
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from gelsim.cli import main
+from gelsim.dataset import load_manifest, verify
+
+# Long enough (about 0.3 s a sequence on one core) for a test to catch a task running.
+CONFIG = ["--fabrics", "4", "--sequences-per-fabric", "3", "--resolution", "128x96", "--fidelity", "fast",
+          "--frames", "24-30", "--precontact", "2-3"]
+GELSIM = str(Path(sys.executable).with_name("gelsim"))
+
+
+def _gen_cli(out, *extra) -> subprocess.Popen:
+    return subprocess.Popen([GELSIM, "generate", "--out", str(out), *CONFIG, "--json", *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def dataset_files(root: Path) -> dict[str, bytes | dict]:
+    """Every file of a dataset by relative path: bytes, except the per-sequence records, whose
+    timings change from run to run (compared without them). previews/dataset_stats.json names the
+    dataset's own directory, which differs between two runs: it is read with that name replaced."""
+    out = {}
+    for p in sorted(root.rglob("*")):
+        if not p.is_file():
+            continue
+        rel = p.relative_to(root).as_posix()
+        if rel.startswith("records/"):
+            r = json.loads(p.read_text())
+            out[rel] = {k: v for k, v in r.items() if k not in ("timings_s", "seconds")}
+        else:
+            out[rel] = p.read_bytes().replace(str(root).encode(), b"<DIR>")
+    return out
+
+
+def assert_same_dataset(a: Path, b: Path) -> None:
+    fa, fb = dataset_files(a), dataset_files(b)
+    assert sorted(fa) == sorted(fb)          # no file more or less (no probe file, no partial)
+    different = [k for k in fa if fa[k] != fb[k]]
+    assert different == []
+    assert any(k.startswith("previews/") for k in fa) and any(k.startswith("videos/") for k in fa)
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The dataset made by the local pool (2 workers)."""
+    out = tmp_path_factory.mktemp("local") / "ds"
+    assert main(["generate", "--out", str(out), *CONFIG, "--workers", "2", "--json"]) == 0
+    assert verify(out) == []
+    return out
+
+
+# ---------------------------------------------------------------- bad input (no cluster)
+
+def _one_line_error(capsys, *needles):
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("gelsim: error: ")
+    for n in needles:
+        assert n in err
+    return err
+
+
+def test_ray_not_installed_is_one_line_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` meets where Ray is not installed
+    out = tmp_path / "ds"
+    assert main(["generate", "--out", str(out), *CONFIG, "--ray"]) == 2
+    _one_line_error(capsys, "make ray", "pip install gelsim[ray]")
+    assert not out.exists()
+
+
+def test_unreachable_address_is_one_line_and_writes_nothing(tmp_path, capsys, free_port):
+    pytest.importorskip("ray", reason="Ray is not installed (make ray)")
+    out = tmp_path / "ds"
+    t0 = time.monotonic()
+    assert main(["generate", "--out", str(out), *CONFIG, "--ray", f"127.0.0.1:{free_port}"]) == 2
+    _one_line_error(capsys, "no Ray head answers", "ray start --head")
+    assert time.monotonic() - t0 < 30
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--ray", "head:port"], "is malformed"),
+    (["--ray", "127.0.0.1:1", "--workers", "2"], "drop --workers"),
+])
+def test_bad_ray_options_one_line(tmp_path, capsys, args, needle):
+    pytest.importorskip("ray", reason="Ray is not installed (make ray)")
+    out = tmp_path / "ds"
+    assert main(["generate", "--out", str(out), *CONFIG, *args]) == 2
+    _one_line_error(capsys, needle)
+    assert not out.exists()
+
+
+# ---------------------------------------------------------------- on a two-node cluster
+
+@pytest.mark.cluster
+def test_two_nodes_write_the_same_bytes_as_the_local_pool(ray_cluster, reference, tmp_path):
+    out = tmp_path / "ds"
+    proc = _gen_cli(out, "--ray", ray_cluster.address)
+    raylets = set()
+    while proc.poll() is None:  # which nodes' raylets run our tasks
+        raylets |= {int(Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[1])
+                    for p in ray_cluster.task_workers("ray_sequence") if Path(f"/proc/{p}").exists()}
+        time.sleep(0.05)
+    stdout, stderr = proc.communicate()
+    assert proc.returncode == 0, stderr
+    summary = json.loads(stdout)
+    assert summary["complete"] and summary["sequences"] == 12
+    assert len(raylets) == 2          # both nodes ran sequences
+    assert_same_dataset(reference, out)
+
+
+@pytest.mark.cluster
+def test_a_killed_worker_is_retried_and_the_run_ends_identical(ray_cluster, reference, tmp_path):
+    out = tmp_path / "ds"
+    proc = _gen_cli(out, "--ray", ray_cluster.address)
+    killed = None
+    deadline = time.monotonic() + 120
+    while killed is None and proc.poll() is None and time.monotonic() < deadline:
+        running = ray_cluster.task_workers("ray_sequence")
+        if running and any((out / "records").glob("*.json")):  # mid-run: some sequences done, one running
+            killed = running[0]
+            os.kill(killed, signal.SIGKILL)
+        time.sleep(0.02)
+    stdout, stderr = proc.communicate(timeout=300)
+    assert killed is not None, "no task was caught running"
+    assert proc.returncode == 0, stderr
+    assert json.loads(stdout)["complete"]
+    assert_same_dataset(reference, out)
+    assert verify(out) == []
+
+
+@pytest.mark.cluster
+def test_resume_on_ray_redoes_only_what_is_missing(ray_cluster, reference, tmp_path):
+    out = tmp_path / "ds"
+    shutil.copytree(reference, out)
+    m = load_manifest(out)
+    lost = m["sequences"][5]
+    (out / lost["video"]).unlink()
+    (out / "records" / f"{lost['id']}.json").unlink()
+    before = {p.name: p.stat().st_mtime_ns for p in (out / "videos").rglob("*.mp4")}
+    proc = _gen_cli(out, "--ray", ray_cluster.address)
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 0, stderr
+    assert_same_dataset(reference, out)
+    after = {p.name: p.stat().st_mtime_ns for p in (out / "videos").rglob("*.mp4")}
+    rewritten = [k for k in after if after[k] != before.get(k)]
+    assert rewritten == [Path(lost["video"]).name]
+
+
+@pytest.mark.cluster
+@pytest.mark.skipif(os.geteuid() != 0 or not shutil.which("unshare"),
+                    reason="a node with its own view of the file system needs root (unshare --mount)")
+def test_a_node_that_cannot_see_the_output_is_one_line_before_any_work(tmp_path, local_ray_cluster):
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    cluster = local_ray_cluster(nodes=1, cpus=1)
+    # The second node runs in its own mount namespace, with an empty tmpfs over `shared`: it sees
+    # another directory at the same path, as a node without the NFS mount would.
+    cluster.add_node(prefix=["unshare", "--mount", "--propagation", "private", "sh", "-c",
+                             'mount -t tmpfs tmpfs "$0" && exec "$@"', str(shared)])
+    out = shared / "ds"
+    proc = _gen_cli(out, "--ray", cluster.address)
+    stdout, stderr = proc.communicate(timeout=300)
+    cluster.stop()
+    assert proc.returncode == 2
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and "is not shared by every Ray node" in lines[0] and "127.0.0.1" in lines[0], stderr
+    assert [p.name for p in out.iterdir()] == []   # no manifest, no sequence, no probe file left
