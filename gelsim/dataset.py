@@ -493,6 +493,8 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
 
         connection = connect(ray, num_cpus=workers)
     with connection as cluster:  # joined before anything is written: a bad address leaves no trace
+        if cluster is not None:
+            root = Path(os.path.abspath(root))  # Ray's workers do not start in this directory
         _check_out_dir(root, config.options())
         if cluster is not None:
             from .cluster import check_shared_dir
