@@ -88,6 +88,8 @@ def _train(args) -> int:
                     pretrained=args.pretrained, resume=args.resume, dry_run=args.dry_run,
                     log=None if args.json or args.quiet else print,
                     note=None if args.quiet else (lambda m: print(m, file=sys.stderr)))
+    if res.get("rank", 0):
+        return 0  # under torchrun, rank 0 reports for the job
     if args.json:
         print_json(res)
     elif args.dry_run:
