@@ -245,14 +245,17 @@ def run_unordered(ray, fn: Callable, items: Iterable, *, args: tuple = (), label
     fill()
     try:
         while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1)
-            item = pending.pop(ready[0])
-            try:
-                result = ray.get(ready[0])
-            except Exception as e:  # Ray's task, worker and node errors, sorted by _task_error
-                raise _task_error(ray, e, label(item)) from None
+            refs = list(pending)
+            ray.wait(refs, num_returns=1)  # blocks until one is done; then take all that are
+            ready, _ = ray.wait(refs, num_returns=len(refs), timeout=0)
+            for ref in ready:
+                item = pending.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except Exception as e:  # Ray's task, worker and node errors, sorted by _task_error
+                    raise _task_error(ray, e, label(item)) from None
+                yield result
             fill()
-            yield result
     finally:
         for ref in pending:  # an error or Ctrl-C: do not leave the cluster busy with this run's tasks
             ray.cancel(ref, force=True)

@@ -148,7 +148,7 @@ def run_generate(args: argparse.Namespace) -> int:
     summary = {"out": str(args.out), "sequences": len(manifest["sequences"]), "complete": manifest["complete"],
                "frames": sum(s["num_frames"] for s in manifest["sequences"]), "splits": manifest["splits"],
                "wall_s": round(wall, 2), "new_frames_per_s": round(frames_done[0] / wall, 2) if wall > 0 else None,
-               "per_frame_ms": timing}
+               "per_frame_ms": timing, "ray": args.ray}
     if args.json:
         print_json(summary)
     else:
