@@ -424,9 +424,28 @@ def resolve_profile(config: GenerateConfig):
     return profile
 
 
-def ray_sequence(config: GenerateConfig, root: str, spec: SequenceSpec) -> dict:
-    """:func:`generate_sequence` as a Ray task: the worker process is set up on its first sequence
-    of a run (as a pool worker is by its initializer) and reused for the next ones."""
+#: Sequences per Ray task at most. One driver schedules a few hundred tasks per second (docs/scale.md),
+#: and a sequence takes about a second at 960x720: tasks of several sequences keep the driver far from
+#: that limit on hundreds of workers; 16 (about 15 s of work) still spreads a run evenly.
+MAX_SEQUENCES_PER_TASK = 16
+#: Tasks per worker at least, for an even finish: the last tasks then hold an eighth of a worker's share.
+TASKS_PER_WORKER = 8
+
+
+def sequences_per_task(sequences: int, cpus: int) -> int:
+    """How many sequences one Ray task generates: 1 for small runs, up to :data:`MAX_SEQUENCES_PER_TASK`
+    when every CPU would still get :data:`TASKS_PER_WORKER` tasks."""
+    return max(1, min(MAX_SEQUENCES_PER_TASK, sequences // (TASKS_PER_WORKER * max(1, cpus))))
+
+
+def _task_label(specs: list[SequenceSpec]) -> str:
+    return f"sequence {specs[0].id}" if len(specs) == 1 else f"sequences {specs[0].id} to {specs[-1].id}"
+
+
+def ray_sequences(config: GenerateConfig, root: str, specs: list[SequenceSpec]) -> list[dict]:
+    """:func:`generate_sequence` of each spec, as one Ray task: the worker process is set up on its first
+    task of a run (as a pool worker is by its initializer) and reused for the next ones. A sequence whose
+    record is already there (a retry of a task whose worker died half-way) is not generated again."""
     if _WORKER.get("config") != config or _WORKER.get("root") != Path(root):
         _worker_init(config, root)
     if not (Path(root) / schema.MANIFEST).is_file():
@@ -435,7 +454,8 @@ def ray_sequence(config: GenerateConfig, root: str, spec: SequenceSpec) -> dict:
 
         raise GelsimError(f"Ray node {node_description()} does not see --out {root} (no {schema.MANIFEST} there); "
                           "mount the output directory at the same path on every node")
-    return generate_sequence(spec)
+    done = _load_records(Path(root), specs)
+    return [done.get(spec.id) or generate_sequence(spec) for spec in specs]
 
 
 @contextlib.contextmanager
@@ -443,10 +463,12 @@ def _sequence_results(config: GenerateConfig, root: Path, todo: list[SequenceSpe
     """The records of ``todo`` as they finish: from Ray tasks (``cluster``), in this process (one
     worker) or from a pool of forked workers."""
     if cluster is not None:
-        from .cluster import run_unordered
+        from .cluster import cluster_cpus, run_unordered
 
-        yield run_unordered(cluster, ray_sequence, todo, args=(config, str(root)),
-                            label=lambda spec: f"sequence {spec.id}")
+        k = sequences_per_task(len(todo), cluster_cpus(cluster))
+        tasks = [todo[i:i + k] for i in range(0, len(todo), k)]
+        yield (rec for recs in run_unordered(cluster, ray_sequences, tasks, args=(config, str(root)),
+                                             label=_task_label) for rec in recs)
         return
     workers = max(1, workers or os.cpu_count() or 1)
     if workers == 1:

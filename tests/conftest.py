@@ -56,6 +56,7 @@ class LocalRayCluster:
         self.address = f"127.0.0.1:{self.port}"
         self.cpus = cpus
         self._blocking: list[subprocess.Popen] = []
+        self._joined = 0
         self._start(["--head", f"--port={self.port}", f"--temp-dir={self.temp}", "--include-dashboard=false"])
         for _ in range(nodes - 1):
             self.add_node()
@@ -76,7 +77,10 @@ class LocalRayCluster:
     def add_node(self, prefix: list[str] | None = None) -> None:
         """Join one more node; ``prefix`` runs ``ray start`` under another command (``unshare ...``)."""
         before = self.alive_nodes()
-        self._start([f"--address={self.address}"], prefix, block=prefix is not None)
+        self._joined += 1
+        # Its own temporary directory (inside the cluster's): two raylets on one machine, two sessions.
+        node_temp = self.temp / f"n{self._joined}"
+        self._start([f"--address={self.address}", f"--temp-dir={node_temp}"], prefix, block=prefix is not None)
         deadline = time.monotonic() + 120
         while self.alive_nodes() <= before:
             if time.monotonic() > deadline:
