@@ -444,7 +444,7 @@ def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict
         if dist is not None and not dist.main:
             distributed.barrier()
         pt = pretrain(cfg.data, out_dir / "pretrain", data=dataset, crop=cfg.crop, onset_threshold=cfg.onset_threshold,
-                      device=cfg.device, progress=cfg.progress and log is not None, log=log,
+                      device=cfg.device, progress=cfg.progress and (dist is None or dist.main), log=log,
                       **dataclasses.asdict(plan))
         if dist is not None and dist.main:
             distributed.barrier()
