@@ -22,6 +22,7 @@ import contextlib
 import os
 import secrets
 import socket
+import sys
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
@@ -90,6 +91,13 @@ def _check_reachable(address: str) -> None:
                           "with `ray start --head` there, or check the address and the firewall") from None
 
 
+def _token_available() -> bool:
+    """Whether a Ray authentication token is at hand: ``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH`` or
+    Ray's default file ``~/.ray/auth_token`` (where ``ray start --head`` puts the one it generates)."""
+    path = os.environ.get("RAY_AUTH_TOKEN_PATH") or os.path.expanduser("~/.ray/auth_token")
+    return bool(os.environ.get("RAY_AUTH_TOKEN")) or os.path.isfile(path)
+
+
 @contextlib.contextmanager
 def connect(address: str, *, num_cpus: int | None = None) -> Iterator[Any]:
     """``with connect(address) as ray:`` a connected ``ray`` module.
@@ -107,12 +115,20 @@ def connect(address: str, *, num_cpus: int | None = None) -> Iterator[Any]:
             raise GelsimError(f"--workers goes with the local pool or a local Ray cluster (--ray alone); the "
                               f"cluster at {address} has its own CPUs; drop --workers")
         _check_reachable(address)
-    kwargs: dict[str, Any] = dict(include_dashboard=False, configure_logging=False)
+    # log_to_driver off: Ray would print its workers' and raylets' lines (a worker that died, say) on
+    # this process's stdout, which --json keeps for one JSON document. They stay in Ray's session logs.
+    kwargs: dict[str, Any] = dict(include_dashboard=False, configure_logging=False, log_to_driver=False)
+    if (address == LOCAL or _token_available()) and "RAY_AUTH_MODE" not in os.environ:
+        # Token authentication: Ray 2.60's default for an instance it starts (said explicitly, it prints
+        # no line about it), and what a cluster `ray start --head` made expects from its drivers, which
+        # Ray does not turn on by itself when joining. Ray reads the mode into its config when imported:
+        # refreshed here as Ray itself does when it turns token mode on. An explicit RAY_AUTH_MODE is kept.
+        os.environ["RAY_AUTH_MODE"] = "token"
+        from ray._raylet import Config
+
+        Config.initialize("")
     try:
         if address == LOCAL:
-            # Ray's default for an instance it starts, said explicitly: then it does not print a line
-            # about it on every run (an explicit RAY_AUTH_MODE is kept).
-            os.environ.setdefault("RAY_AUTH_MODE", "token")
             ray.init(address="local", num_cpus=num_cpus, **kwargs)
         else:
             ray.init(address=address, **kwargs)
@@ -123,7 +139,10 @@ def connect(address: str, *, num_cpus: int | None = None) -> Iterator[Any]:
                else "check that the Ray versions of this machine and the cluster match (`ray --version`)")
         raise GelsimError(f"cannot join {where} ({first}); {fix}") from None
     try:
-        yield ray
+        # Ray prints the errors its raylets report (a worker that died) on sys.stdout, which --json keeps
+        # for one JSON document: they go to stderr while connected.
+        with contextlib.redirect_stdout(sys.stderr):
+            yield ray
     finally:
         ray.shutdown()
 

@@ -117,8 +117,10 @@ def _experiment(args) -> int:
         from gelsim.cluster import import_ray
 
         import_ray()  # not installed: one line, before anything is written
+    stdout = sys.stdout  # progress lines stay on stdout while Ray's own messages go to stderr (gelsim.cluster)
     res = run_experiment(args.data, args.out, args.preset, args.seeds, args.models, args.frames, args.settings,
-                         log=None if args.json else print, note=lambda m: print(m, file=sys.stderr), ray=args.ray)
+                         log=None if args.json else (lambda m: print(m, file=stdout)),
+                         note=lambda m: print(m, file=sys.stderr), ray=args.ray)
     if args.json:
         print_json({k: v for k, v in res.items() if k != "cells"} | {"cells": len(res["cells"])})
     else:

@@ -64,7 +64,9 @@ class LocalRayCluster:
     def _start(self, args: list[str], prefix: list[str] | None = None, block: bool = False) -> None:
         cmd = [*(prefix or []), RAY, "start", *args, "--node-ip-address=127.0.0.1", f"--num-cpus={self.cpus}",
                "--object-store-memory=100000000", "--disable-usage-stats"]
-        env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
+        # Token authentication, as Ray's default for a new cluster; said explicitly, since a node joined
+        # with `ray start --address` does not turn it on by itself.
+        env = self.env()
         if block:  # stays in the foreground (a node in another mount namespace: see add_node)
             self._blocking.append(subprocess.Popen(cmd + ["--block"], env=env, stdout=subprocess.DEVNULL,
                                                    stderr=subprocess.DEVNULL))
@@ -73,6 +75,11 @@ class LocalRayCluster:
         if r.returncode != 0:
             self.stop()
             pytest.fail(f"ray start failed: {r.stderr[-2000:]}")
+
+    @staticmethod
+    def env() -> dict:
+        """The environment of this cluster's processes and of the test's drivers."""
+        return {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "token"}
 
     def add_node(self, prefix: list[str] | None = None) -> None:
         """Join one more node; ``prefix`` runs ``ray start`` under another command (``unshare ...``)."""
@@ -92,19 +99,28 @@ class LocalRayCluster:
         """Nodes the head counts as alive (``ray list nodes`` would need the dashboard)."""
         code = ("import ray, sys; ray.init(address=sys.argv[1], configure_logging=False, log_to_driver=False); "
                 "print(sum(n['Alive'] for n in ray.nodes()))")
-        r = subprocess.run([sys.executable, "-c", code, self.address], capture_output=True, text=True, timeout=120)
+        r = subprocess.run([sys.executable, "-c", code, self.address], capture_output=True, text=True, timeout=120,
+                           env=self.env())
         return int(r.stdout.strip().splitlines()[-1]) if r.returncode == 0 and r.stdout.strip() else 0
 
     def own_processes(self) -> list[int]:
-        """Pids of this cluster's daemons (their command lines name its temporary directory)."""
+        """Pids of this cluster's daemons (their command lines name its temporary directory) and of
+        their children (agents and workers, which retitle themselves ``ray::...``)."""
         me = str(self.temp)
-        return [p for p in _pids() if me in _cmdline(p) and p != os.getpid()]
+        pids = _pids()
+        own = {p for p in pids if me in _cmdline(p) and p != os.getpid()}
+        parents = {p: _parent(p) for p in pids}
+        grown = True
+        while grown:
+            children = {p for p, parent in parents.items() if parent in own} - own
+            own |= children
+            grown = bool(children)
+        return sorted(own)
 
     def task_workers(self, function: str) -> list[int]:
         """Pids of this cluster's worker processes now running a task of ``function``: Ray titles a
-        worker ``ray::<function>`` while it runs one, and its parent is one of this cluster's raylets."""
-        daemons = set(self.own_processes())
-        return [p for p in _pids() if _cmdline(p).startswith(f"ray::{function}") and _parent(p) in daemons]
+        worker ``ray::<function>`` while it runs one."""
+        return [p for p in self.own_processes() if _cmdline(p).startswith(f"ray::{function}")]
 
     def stop(self) -> None:
         for p in self._blocking:
