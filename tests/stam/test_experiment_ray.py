@@ -21,12 +21,12 @@ def test_cells_on_ray_give_the_local_results_and_are_kept(ray_cluster, tiny_expe
     res = run_experiment(str(tiny_experiment["data"]), out, str(tiny_experiment["preset"]), log=None,
                          ray=ray_cluster.address)
     local, remote = _cells(tiny_experiment["out"]), _cells(out)
-    assert sorted(remote) == sorted(local) and len(local) == 8
+    assert sorted(remote) == sorted(local) and len(local) == 12
     for key in local:
         assert {k: remote[key][k] for k in COMPARED} == {k: local[key][k] for k in COMPARED}, key
     for name in ("table1.md", "table2.md", "differences.md"):
         assert (out / name).read_text() == (tiny_experiment["out"] / name).read_text()
-    assert len(res["cells"]) == 8
+    assert len(res["cells"]) == 12
 
     # A rerun on Ray trains nothing: every cell's result.json is kept as it is.
     stamps = {p: p.stat().st_mtime_ns for p in (out / "cells").rglob("result.json")}
