@@ -87,6 +87,9 @@ def check_same_config(dist: Dist, config: dict, what: str = "the config") -> Non
     diff = sorted({k for other in every for k in set(mine) | set(other) if other.get(k) != every[0].get(k)})
     if not diff:
         return
+    # Leave the group together before exiting: a rank whose peer is gone aborts in gloo's destructor.
+    td.barrier()
+    td.destroy_process_group()
     if dist.main:
         ranks = [r for r, other in enumerate(every) if any(other.get(k) != every[0].get(k) for k in diff)]
         shown = ", ".join(f"{k}: {every[0].get(k)!r} on rank 0, {every[ranks[0]].get(k)!r} on rank {ranks[0]}"
