@@ -16,7 +16,7 @@ STAMP       := $(VENV)/.gelsim-installed
 PYOPENGL_SPEC := PyOpenGL==3.1.10
 DEMO_OUT    ?= out/demo
 
-.PHONY: install demo test test-slow test-extras bench gl-libs clean-venv gym
+.PHONY: install demo test test-slow test-extras test-cluster bench gl-libs clean-venv gym ray
 
 install: $(STAMP)
 
@@ -53,6 +53,12 @@ gym: $(STAMP)
 	$(PY) -m pip install -q -e ".[gym]"
 	$(PY) -m pip install -q --no-deps "$(PYOPENGL_SPEC)"
 
+# Optional: Ray, for `gelsim generate --ray` and `stam experiment --ray` (docs/scale.md); without it
+# the local worker pool is used and the Ray tests skip. Same PyOpenGL restore as for gym.
+ray: $(STAMP)
+	$(PY) -m pip install -q -e ".[ray]"
+	$(PY) -m pip install -q --no-deps "$(PYOPENGL_SPEC)"
+
 demo: $(STAMP)
 	$(VENV)/bin/gelsim generate --preset quick --out $(DEMO_OUT)
 	@echo "demo dataset: $(DEMO_OUT) (manifest: $(DEMO_OUT)/manifest.json, previews: $(DEMO_OUT)/previews/)"
@@ -63,9 +69,14 @@ test: $(STAMP)
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m "slow or not slow"
 
-# The tests of the optional engines, after installing them (Gymnasium: gelsim.envs).
-test-extras: gym
-	$(PY) -m pytest -q -rs tests/gelsim/test_envs.py
+# The tests that start their own two-node Ray cluster on 127.0.0.1 and torchrun processes.
+test-cluster: ray
+	$(PY) -m pytest -q -rs -m cluster
+
+# The tests of the optional engines, after installing them (Gymnasium: gelsim.envs; Ray: generation
+# and the sweep on Ray, in-process and on a two-node local cluster).
+test-extras: gym ray
+	$(PY) -m pytest -q -rs tests/gelsim/test_envs.py tests/gelsim/test_ray.py tests/stam/test_experiment_ray.py -m "cluster or not cluster"
 
 bench: $(STAMP)
 	@for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done

@@ -12,6 +12,7 @@ the record is written only after its video and labels were renamed into place.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -423,11 +424,76 @@ def resolve_profile(config: GenerateConfig):
     return profile
 
 
+#: Sequences per Ray task at most. One driver schedules a few hundred tasks per second (docs/scale.md),
+#: and a sequence takes about a second at 960x720: tasks of several sequences keep the driver far from
+#: that limit on hundreds of workers; 16 (about 15 s of work) still spreads a run evenly.
+MAX_SEQUENCES_PER_TASK = 16
+#: Tasks per worker at least, for an even finish: the last tasks then hold an eighth of a worker's share.
+TASKS_PER_WORKER = 8
+
+
+def sequences_per_task(sequences: int, cpus: int) -> int:
+    """How many sequences one Ray task generates: 1 for small runs, up to :data:`MAX_SEQUENCES_PER_TASK`
+    when every CPU would still get :data:`TASKS_PER_WORKER` tasks."""
+    return max(1, min(MAX_SEQUENCES_PER_TASK, sequences // (TASKS_PER_WORKER * max(1, cpus))))
+
+
+def _task_label(specs: list[SequenceSpec]) -> str:
+    return f"sequence {specs[0].id}" if len(specs) == 1 else f"sequences {specs[0].id} to {specs[-1].id}"
+
+
+def ray_sequences(config: GenerateConfig, root: str, specs: list[SequenceSpec]) -> list[dict]:
+    """:func:`generate_sequence` of each spec, as one Ray task: the worker process is set up on its first
+    task of a run (as a pool worker is by its initializer) and reused for the next ones. A sequence whose
+    record is already there (a retry of a task whose worker died half-way) is not generated again."""
+    if _WORKER.get("config") != config or _WORKER.get("root") != Path(root):
+        _worker_init(config, root)
+    if not (Path(root) / schema.MANIFEST).is_file():
+        # A node that joined after the start-up check (an autoscaler's) and cannot see --out.
+        from .cluster import node_description
+
+        raise GelsimError(f"Ray node {node_description()} does not see --out {root} (no {schema.MANIFEST} there); "
+                          "mount the output directory at the same path on every node")
+    done = _load_records(Path(root), specs)
+    return [done.get(spec.id) or generate_sequence(spec) for spec in specs]
+
+
+@contextlib.contextmanager
+def _sequence_results(config: GenerateConfig, root: Path, todo: list[SequenceSpec], workers: int | None, cluster):
+    """The records of ``todo`` as they finish: from Ray tasks (``cluster``), in this process (one
+    worker) or from a pool of forked workers."""
+    if cluster is not None:
+        from .cluster import cluster_cpus, run_unordered
+
+        k = sequences_per_task(len(todo), cluster_cpus(cluster))
+        tasks = [todo[i:i + k] for i in range(0, len(todo), k)]
+        yield (rec for recs in run_unordered(cluster, ray_sequences, tasks, args=(config, str(root)),
+                                             label=_task_label) for rec in recs)
+        return
+    workers = max(1, workers or os.cpu_count() or 1)
+    if workers == 1:
+        _worker_init(config, str(root))
+        yield map(generate_sequence, todo)
+        return
+    import multiprocessing as mp
+
+    pool = mp.get_context("fork").Pool(workers, initializer=_worker_init, initargs=(config, str(root)))
+    try:
+        yield pool.imap_unordered(generate_sequence, todo, chunksize=1)
+    finally:
+        pool.terminate()
+        pool.join()
+
+
 def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = None,
-             progress: Callable[[int, int, dict], None] | None = None, previews: bool = True) -> dict:
+             progress: Callable[[int, int, dict], None] | None = None, previews: bool = True,
+             ray: str | None = None) -> dict:
     """Generate (or finish) the dataset ``config`` under ``out``; returns the final manifest.
 
     ``progress(done, total, record)`` is called after each sequence (for a progress bar).
+    ``ray``: run each sequence as a Ray task instead of in the local pool: ``"local"`` starts a Ray
+    instance on this machine (``workers`` CPUs), ``"auto"`` or ``HOST:PORT`` joins a cluster, whose
+    nodes must all see ``out`` (checked first). The output is the same bytes either way.
     """
     from .fabrics import load_catalog
     from .fidelity import get_fidelity
@@ -443,7 +509,24 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
     unit_profiles(config, profile)  # a profile without [unit_variation] fails here, before anything is written
     specs = plan(config, len(catalog))
     root = Path(out)
-    _check_out_dir(root, config.options())
+    connection = contextlib.nullcontext(None)
+    if ray is not None:
+        from .cluster import connect
+
+        connection = connect(ray, num_cpus=workers)
+    with connection as cluster:  # joined before anything is written: a bad address leaves no trace
+        if cluster is not None:
+            root = Path(os.path.abspath(root))  # Ray's workers do not start in this directory
+        _check_out_dir(root, config.options())
+        if cluster is not None:
+            from .cluster import check_shared_dir
+
+            check_shared_dir(cluster, root)
+        return _generate_in(config, root, catalog, profile, specs, workers, progress, previews, cluster)
+
+
+def _generate_in(config, root: Path, catalog, profile, specs, workers, progress, previews, cluster) -> dict:
+    """The rest of :func:`generate` once ``root`` is checked (and, with Ray, seen by every node)."""
     _clean_partials(root)
     records = _load_records(root, specs)
     todo = [s for s in specs if s.id not in records]
@@ -453,30 +536,17 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
         raise GelsimError(f"too little disk under {root}: about {need / 1e9:.1f} GB needed, {free / 1e9:.1f} GB free; "
                           "free space or choose another --out")
     atomic_write_json(root / schema.MANIFEST, _manifest(config, profile, catalog, specs, records))
-    workers = max(1, workers or os.cpu_count() or 1)
     total = len(specs)
     done = len(records)
     if todo:
-        if workers == 1:
-            _worker_init(config, str(root))
-            results = map(generate_sequence, todo)
-            pool = None
-        else:
-            import multiprocessing as mp
-
-            ctx = mp.get_context("fork")
-            pool = ctx.Pool(workers, initializer=_worker_init, initargs=(config, str(root)))
-            results = pool.imap_unordered(generate_sequence, todo, chunksize=1)
-        try:
+        with _sequence_results(config, root, todo, workers, cluster) as results:
             for rec in results:
                 records[rec["id"]] = rec
                 done += 1
                 if progress:
                     progress(done, total, rec)
-        finally:
-            if pool is not None:
-                pool.terminate()
-                pool.join()
+        if cluster is not None:
+            _clean_partials(root)  # a killed worker's half-written files (its retry wrote the real ones)
     manifest = _manifest(config, profile, catalog, specs, records)
     if previews:
         from .previews import write_previews

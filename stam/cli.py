@@ -88,6 +88,8 @@ def _train(args) -> int:
                     pretrained=args.pretrained, resume=args.resume, dry_run=args.dry_run,
                     log=None if args.json or args.quiet else print,
                     note=None if args.quiet else (lambda m: print(m, file=sys.stderr)))
+    if res.get("rank", 0):
+        return 0  # under torchrun, rank 0 reports for the job
     if args.json:
         print_json(res)
     elif args.dry_run:
@@ -111,8 +113,14 @@ def _evaluate(args) -> int:
 def _experiment(args) -> int:
     from .experiment import run_experiment
 
+    if args.ray is not None:
+        from gelsim.cluster import import_ray
+
+        import_ray()  # not installed: one line, before anything is written
+    stdout = sys.stdout  # progress lines stay on stdout while Ray's own messages go to stderr (gelsim.cluster)
     res = run_experiment(args.data, args.out, args.preset, args.seeds, args.models, args.frames, args.settings,
-                         log=None if args.json else print, note=lambda m: print(m, file=sys.stderr))
+                         log=None if args.json else (lambda m: print(m, file=stdout)),
+                         note=lambda m: print(m, file=sys.stderr), ray=args.ray)
     if args.json:
         print_json({k: v for k, v in res.items() if k != "cells"} | {"cells": len(res["cells"])})
     else:
@@ -255,6 +263,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--models", nargs="+", choices=MODEL_NAMES, help="subset of models (default all)")
     s.add_argument("--frames", nargs="+", type=int, help="subset of n (default 2..7)")
     s.add_argument("--settings", nargs="+", choices=("clean", "noisy"), help="subset of settings (default both)")
+    s.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
+                   help="train the cells as Ray tasks (one CPU each, or the preset's threads; a GPU with device "
+                        "cuda): alone, on a Ray instance started here; 'auto' or HOST:PORT, on that cluster, "
+                        "whose nodes must mount --data and --out at the same paths (checked first). "
+                        "Pretraining stays here. Same results as a local run with the same threads; needs `make ray`")
 
     s = cmd("explain", _explain, "Grad-CAM per frame and STAM's temporal attention map for one window (PNG)")
     s.add_argument("--checkpoint", action="append", required=True, help="best.pt of a run (repeatable: cnn, cnn_sa, stam)")

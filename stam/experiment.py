@@ -27,9 +27,11 @@ the recorded accuracy, else the cell was tested on another dataset and the run s
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
+import os
 import time
 from pathlib import Path
 
@@ -40,7 +42,7 @@ from gelsim.atomic import atomic_write_json, atomic_write_text, write_figure
 
 from . import stats
 from .backbone import AlexNetFeatures
-from .config import PretrainConfig, load_preset, resolve_train
+from .config import PretrainConfig, TrainConfig, load_preset, resolve_train
 from .data import SPLITS, TactileDataset, backbone_features
 from .errors import StamError
 from .evaluate import evaluate
@@ -62,11 +64,12 @@ PAPER_FRAMES = [2, 3, 4, 5, 6, 7]
 
 
 def _feature_cache(out: Path, backbone_path: Path, data: TactileDataset, width: float, image_size: int,
-                   log) -> dict:
+                   log) -> tuple[Path, dict]:
+    """(path, features): the frozen backbone's features of every frame, computed once into ``out``."""
     digest = hashlib.sha256(backbone_path.read_bytes()).hexdigest()[:12]
     path = out / f"features-{digest}-{image_size}px-crop{data.crop:g}.pt"
     if path.is_file():
-        return torch.load(path, map_location="cpu", weights_only=True)
+        return path, torch.load(path, map_location="cpu", weights_only=True)
     t0 = time.perf_counter()
     net = AlexNetFeatures(width)
     load_backbone(net, str(backbone_path))
@@ -74,7 +77,7 @@ def _feature_cache(out: Path, backbone_path: Path, data: TactileDataset, width: 
     save_atomic(feats, path)
     if log:
         log(f"features of {len(feats)} sequences in {time.perf_counter() - t0:.1f} s -> {path.name}")
-    return feats
+    return path, feats
 
 
 PER_SEQUENCE_KEYS = ("test_ids", "test_predictions", "test_correct")
@@ -126,13 +129,79 @@ def _finished_cell(cell_dir: Path, out: Path, test_ids: list[str], data: Tactile
     return cell
 
 
+def _cell_dir(out: Path, key: tuple) -> Path:
+    seed, setting, n, m = key
+    return out / "cells" / setting / f"n{n}" / m / f"seed{seed}"
+
+
+def train_cell(base: TrainConfig, out: Path, key: tuple, data: TactileDataset, feats: dict | None) -> dict:
+    """Train and test one cell ``key`` = (seed, setting, n, model) of the sweep into its directory;
+    returns (and writes as result.json) its result with the per-sequence lists."""
+    seed, setting, n, m = key
+    cell_dir = _cell_dir(out, key)
+    c0 = time.perf_counter()
+    run_cfg = resolve_train(base, {"out": str(cell_dir), "model": m, "frames": n, "start": SETTINGS[setting],
+                                   "seed": seed}, "the sweep")
+    summary = train(run_cfg, features=feats, data=data, log=None)
+    ev = evaluate(summary["best"], split="test", data=data, features=feats)
+    cell = {"setting": setting, "frames": n, "model": m, "seed": seed, "test_acc": ev["accuracy"],
+            "val_acc": summary["best_val_acc"], "best_epoch": summary["best_epoch"],
+            "test_count": ev["count"], "seconds": round(time.perf_counter() - c0, 2), **_per_sequence(ev)}
+    atomic_write_json(cell_dir / "result.json", cell)
+    # Checkpoints of finished cells are not needed for the tables; keep best.pt only.
+    (cell_dir / "last.pt").unlink(missing_ok=True)
+    return cell
+
+
+_RAY_WORKER: dict = {}
+
+
+def ray_cell(base: TrainConfig, out: str, features: str | None, key: tuple) -> dict:
+    """:func:`train_cell` as a Ray task. The dataset reader and the frozen backbone's features (from
+    the driver's cache file in OUT) are loaded once per worker process and kept for its next cells.
+    Torch runs on the task's CPUs (``threads``, else 1), as a local run with that many threads would."""
+    torch.set_num_threads(base.threads or 1)
+    which = (base.data, base.crop, base.cache_dir, features)
+    if _RAY_WORKER.get("which") != which:
+        _RAY_WORKER.clear()
+        _RAY_WORKER.update(which=which, data=TactileDataset(base.data, base.cache_dir or None, crop=base.crop),
+                           feats=None if features is None else
+                           torch.load(features, map_location="cpu", weights_only=True))
+    return train_cell(base, Path(out), key, _RAY_WORKER["data"], _RAY_WORKER["feats"])
+
+
+def _cell_results(base: TrainConfig, out: Path, keys: list[tuple], data, feats, features_path, cluster):
+    """The results of training ``keys``, as they finish: here one after another, or as Ray tasks."""
+    if cluster is None:
+        return (train_cell(base, out, key, data, feats) for key in keys)
+    from gelsim.cluster import run_unordered
+
+    gpus = 1 if base.device == "cuda" or (base.device == "auto" and cluster.cluster_resources().get("GPU")) else 0
+    return run_unordered(cluster, ray_cell, keys, args=(base, str(out), features_path and str(features_path)),
+                         label=lambda key: f"cell {_cell_dir(out, key).relative_to(out)}",
+                         num_cpus=base.threads or 1, num_gpus=gpus)
+
+
 def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: int | None = None,
                    models: list[str] | None = None, frames: list[int] | None = None,
                    settings: list[str] | None = None, overrides: dict | None = None, log=print,
-                   note=None) -> dict:
+                   note=None, ray: str | None = None) -> dict:
     """Run (or resume) the sweep; returns what results.json holds: cells (without per-sequence lists),
     tables, differences, ratios, resolution, seed check, paths. ``log``: progress lines; ``note``:
-    warnings (one line each; the CLI prints them on stderr)."""
+    warnings (one line each; the CLI prints them on stderr). ``ray``: train the cells as Ray tasks
+    (``"local"``: on a Ray instance started here; ``"auto"`` or ``HOST:PORT``: on that cluster, whose
+    nodes must see ``data_dir`` and ``out``); pretraining and the feature cache stay on this machine."""
+    connection = contextlib.nullcontext(None)
+    if ray is not None:
+        from gelsim.cluster import connect
+
+        connection = connect(ray)
+    with connection as cluster:  # joined first: a bad address fails before any pretraining
+        return _run_experiment(data_dir, out, preset, seeds, models, frames, settings, overrides, log, note,
+                               cluster)
+
+
+def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, overrides, log, note, cluster) -> dict:
     cfg = load_preset(preset)
     sweep = cfg.sweep
     models = list(models or sweep.models)
@@ -146,6 +215,13 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
         raise StamError(f"--seeds must be at least 1, got {seeds}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    if cluster is not None:
+        from gelsim.cluster import check_shared_dir
+
+        # Ray's workers do not start in this directory: they get absolute paths.
+        out, data_dir = Path(os.path.abspath(out)), os.path.abspath(data_dir)
+        check_shared_dir(cluster, out)
+        check_shared_dir(cluster, data_dir, "--data")
     crop = cfg.train.crop
     data = TactileDataset(data_dir, crop=crop)
     for split in SPLITS:
@@ -176,31 +252,20 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
         log(f"pretrained backbone: val frame accuracy {pt['val_acc']:.3f} ({t_pre:.0f} s)")
     base = resolve_train(cfg.train, {**(overrides or {}), "data": str(data_dir), "pretrained": pt["path"],
                                      "preset": cfg.name}, "the experiment's overrides")
-    feats = None
+    feats = features_path = None
     if base.freeze_backbone:
-        feats = _feature_cache(out, Path(pt["path"]), data, base.width, size, log)
+        features_path, feats = _feature_cache(out, Path(pt["path"]), data, base.width, size, log)
 
-    cells = []
     todo = [(seed, setting, n, m) for seed in range(seeds) for setting in settings for n in frames for m in models]
-    for i, (seed, setting, n, m) in enumerate(todo, 1):
-        cell_dir = out / "cells" / setting / f"n{n}" / m / f"seed{seed}"
-        cell = _finished_cell(cell_dir, out, test_ids, data, feats, log)
-        if cell is None:
-            c0 = time.perf_counter()
-            run_cfg = resolve_train(base, {"out": str(cell_dir), "model": m, "frames": n,
-                                           "start": SETTINGS[setting], "seed": seed}, "the sweep")
-            summary = train(run_cfg, features=feats, data=data, log=None)
-            ev = evaluate(summary["best"], split="test", data=data, features=feats)
-            cell = {"setting": setting, "frames": n, "model": m, "seed": seed, "test_acc": ev["accuracy"],
-                    "val_acc": summary["best_val_acc"], "best_epoch": summary["best_epoch"],
-                    "test_count": ev["count"], "seconds": round(time.perf_counter() - c0, 2), **_per_sequence(ev)}
-            atomic_write_json(cell_dir / "result.json", cell)
-            # Checkpoints of finished cells are not needed for the tables; keep best.pt only.
-            (cell_dir / "last.pt").unlink(missing_ok=True)
-            if log:
-                log(f"[{i}/{len(todo)}] {setting} n={n} {m} seed {seed}: test {ev['accuracy']:.3f} "
-                    f"(val {summary['best_val_acc']:.3f}, {cell['seconds']:.0f} s)")
-        cells.append(cell)
+    finished = {key: _finished_cell(_cell_dir(out, key), out, test_ids, data, feats, log) for key in todo}
+    train_keys = [key for key in todo if finished[key] is None]
+    for cell in _cell_results(base, out, train_keys, data, feats, features_path, cluster):
+        finished[(cell["seed"], cell["setting"], cell["frames"], cell["model"])] = cell
+        if log:
+            done = sum(c is not None for c in finished.values())
+            log(f"[{done}/{len(todo)}] {cell['setting']} n={cell['frames']} {cell['model']} seed {cell['seed']}: "
+                f"test {cell['test_acc']:.3f} (val {cell['val_acc']:.3f}, {cell['seconds']:.0f} s)")
+    cells = [finished[key] for key in todo]
     analysis = analyse(cells, models, frames, settings, test_ids)
     paths = write_tables(out, analysis, models, frames, settings, seeds, onsets, preset)
     result = {"cells": [{k: v for k, v in c.items() if k not in PER_SEQUENCE_KEYS} for c in cells],

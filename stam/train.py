@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch.utils.data import DataLoader
+from torch.utils.data import DataLoader, Subset
 
 from gelsim.atomic import atomic_open, atomic_write_text
 
@@ -86,8 +86,14 @@ def make_loader(ds, batch_size: int, shuffle: bool, seed: int, epoch: int, worke
                       drop_last=False)
 
 
-def run_epoch(model, loader, device, forward, optimizer=None, progress=False, desc="") -> tuple[float, float]:
-    """One pass; trains when ``optimizer`` is given. Returns (mean loss, accuracy in [0, 1])."""
+def run_epoch(model, loader, device, forward, optimizer=None, progress=False, desc="", shares=None,
+              dist=None) -> tuple[float, float]:
+    """One pass; trains when ``optimizer`` is given. Returns (mean loss, accuracy in [0, 1]).
+
+    Under torchrun (``dist``, a :class:`stam.distributed.Dist`) the means are over every rank's
+    items; ``shares`` (training) lists per batch (global batch size, items of this rank's part that
+    count), and each rank's loss is scaled so that DDP's average of the gradients is the gradient of
+    the global batch's mean loss (:mod:`stam.distributed`)."""
     train = optimizer is not None
     model.train(train)
     total_loss, correct, count = 0.0, 0, 0
@@ -97,17 +103,29 @@ def run_epoch(model, loader, device, forward, optimizer=None, progress=False, de
 
         it = tqdm(loader, desc=desc, leave=False, file=sys.stderr, dynamic_ncols=True)
     with torch.set_grad_enabled(train):
-        for x, y in it:
+        for k, (x, y) in enumerate(it):
             x, y = x.to(device), y.to(device)
             logits = forward(x)
-            loss = F.cross_entropy(logits, y)
+            if shares is None:
+                loss = F.cross_entropy(logits, y)
+                n, loss_sum = y.shape[0], loss.item() * y.shape[0]
+            else:
+                size, n = shares[k]
+                per = F.cross_entropy(logits, y, reduction="none")[:n]
+                loss = per.sum() * (dist.world / size)
+                loss_sum = per.sum().item()
+                logits, y = logits[:n], y[:n]
             if train:
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 optimizer.step()
-            total_loss += loss.item() * y.shape[0]
+            total_loss += loss_sum
             correct += (logits.argmax(1) == y).sum().item()
-            count += y.shape[0]
+            count += n
+    if dist is not None:
+        from .distributed import all_sum
+
+        total_loss, correct, count = all_sum([total_loss, correct, count], device)
     return total_loss / max(count, 1), correct / max(count, 1)
 
 
@@ -158,16 +176,24 @@ class CsvLog:
 
 
 def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = None,
-          data: TactileDataset | None = None, log=print) -> dict:
+          data: TactileDataset | None = None, log=print, dist=None) -> dict:
     """Train one run into ``cfg.out``. ``features`` (seq id -> T x C x h x w) skips the backbone
-    pass when the backbone is frozen. Returns a summary dict (best validation accuracy, epoch, paths)."""
+    pass when the backbone is frozen. ``dist`` (a :class:`stam.distributed.Dist`): this process is one
+    rank of a torchrun job (DDP; rank 0 writes the files). Returns a summary dict (best validation
+    accuracy, epoch, paths)."""
     if not cfg.data or not cfg.out:
         raise StamError("both data and out are required; pass --data DIR --out DIR")
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    device = resolve_device(cfg.device)
+    main = dist is None or dist.main
+    if dist is None:
+        device = resolve_device(cfg.device)
+    else:
+        from . import distributed
+
+        device = distributed.init(dist, cfg.device)
     data = data or TactileDataset(cfg.data, cfg.cache_dir or None, crop=cfg.crop)
     seed_everything(cfg.seed)
     model = models.build(cfg.model, cfg.frames, data.num_classes, **cfg.model_options())
@@ -205,13 +231,18 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
     val_ds = WindowDataset(data, "val", cfg.frames, cfg.start, cfg.image_size, cfg.onset,
                            cfg.onset_threshold, feats)
     forward = model.forward_features if cfg.freeze_backbone else model
+    train_forward = forward if dist is None else distributed.wrap(model, cfg.freeze_backbone, device)
 
     opt = make_optimizer(cfg, model.parameters())
     sched = make_scheduler(cfg, opt)
+    if dist is not None and not dist.main:
+        # Dropout masks of their own on the other ranks (rank 0 draws as one process would).
+        torch.manual_seed(cfg.seed * 1_000_003 + dist.rank)
     if ck is not None:
         opt.load_state_dict(ck["optimizer"])
         sched.load_state_dict(ck["scheduler"])
-        torch.set_rng_state(ck["rng"])
+        rngs = ck.get("rng_ranks") or []
+        torch.set_rng_state(rngs[dist.rank] if dist is not None and len(rngs) == dist.world else ck["rng"])
         start_epoch, best_acc, best_epoch = ck["epoch"] + 1, ck["best_acc"], ck["best_epoch"]
         if hasattr(sched, "T_max") and sched.T_max != cfg.epochs:
             # More (or fewer) epochs on resume: the cosine over the new length, from where the run is.
@@ -222,33 +253,52 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
                 group["lr"] = sched.eta_min + (base - sched.eta_min) * (
                     1 + math.cos(math.pi * sched.last_epoch / cfg.epochs)) / 2
     config = dataclasses.asdict(cfg)
-    atomic_write_text(out / "config.json", json.dumps(config, indent=2))
-    logger = CsvLog(out / "log.csv", start_epoch - 1)
+    if main:
+        atomic_write_text(out / "config.json", json.dumps(config, indent=2))
+        logger = CsvLog(out / "log.csv", start_epoch - 1)
+    else:
+        log = None
 
     for epoch in range(start_epoch, cfg.epochs + 1):
         t0 = time.perf_counter()
         lr = opt.param_groups[0]["lr"]
-        tl, ta = run_epoch(model, make_loader(train_ds, cfg.batch_size, True, cfg.seed, epoch, cfg.workers),
-                           device, forward, opt, cfg.progress, f"epoch {epoch}/{cfg.epochs}")
-        vl, va = run_epoch(model, make_loader(val_ds, cfg.batch_size, False, cfg.seed, epoch, cfg.workers),
-                           device, forward)
+        if dist is None:
+            tl, ta = run_epoch(model, make_loader(train_ds, cfg.batch_size, True, cfg.seed, epoch, cfg.workers),
+                               device, forward, opt, cfg.progress, f"epoch {epoch}/{cfg.epochs}")
+            vl, va = run_epoch(model, make_loader(val_ds, cfg.batch_size, False, cfg.seed, epoch, cfg.workers),
+                               device, forward)
+        else:
+            batches = distributed.RankBatches(len(train_ds), cfg.batch_size, cfg.seed, epoch, dist)
+            tl, ta = run_epoch(model, DataLoader(train_ds, batch_sampler=batches, num_workers=cfg.workers), device,
+                               train_forward, opt, cfg.progress and main, f"epoch {epoch}/{cfg.epochs}",
+                               shares=batches.weights(), dist=dist)
+            shard = Subset(val_ds, range(dist.rank, len(val_ds), dist.world))
+            vl, va = run_epoch(model, DataLoader(shard, batch_size=cfg.batch_size, num_workers=cfg.workers), device,
+                               forward, dist=dist)
         sched.step()
         row = {"epoch": epoch, "train_loss": round(tl, 5), "train_acc": round(ta, 5), "val_loss": round(vl, 5),
                "val_acc": round(va, 5), "lr": lr, "seconds": round(time.perf_counter() - t0, 3)}
-        logger.write(row)
-        if va > best_acc:
+        improved = va > best_acc  # the same on every rank: va is summed over them
+        if improved:
             best_acc, best_epoch = va, epoch
+        rngs = None if dist is None else distributed.gather_rng(dist)
+        if not main:
+            continue
+        logger.write(row)
+        if improved:
             save_atomic({"model": model.state_dict(), "config": config, "epoch": epoch, "val_acc": va,
                          "num_classes": data.num_classes, "class_names": data.class_names}, best_path)
         save_atomic({"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
                      "epoch": epoch, "best_acc": best_acc, "best_epoch": best_epoch, "config": config,
                      "rng": torch.get_rng_state(), "num_classes": data.num_classes,
-                     "class_names": data.class_names}, last_path)
+                     "class_names": data.class_names, **({"rng_ranks": rngs} if rngs else {})}, last_path)
         if log:
             left = cfg.epochs - epoch
             eta = f"; about {left * row['seconds'] / 60:.1f} min for the {left} epochs left" if epoch == start_epoch and left else ""
             log(f"epoch {epoch}: train loss {tl:.3f} acc {ta:.3f}, val loss {vl:.3f} acc {va:.3f} "
                 f"({row['seconds']:.1f} s{eta})")
+    if dist is not None:
+        distributed.barrier()  # rank 0's checkpoints are written when any rank returns
     return {"out": str(out), "best_val_acc": best_acc, "best_epoch": best_epoch, "epochs": cfg.epochs,
             "train_windows": len(train_ds), "val_windows": len(val_ds),
             "undetected_onsets_train": train_ds.undetected, "best": str(best_path), "last": str(last_path)}
@@ -364,6 +414,16 @@ def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict
         raise StamError(f"the backbone would be pretrained at width {plan.width:g} but trained at width "
                           f"{cfg.width:g}; give [pretrain] and [train] the same width in a preset file, "
                           "or pass --pretrained PATH|none")
+    from . import distributed
+
+    dist = distributed.from_env()
+    if dist is not None:
+        # Before anything is read or written: every rank must be about to run the same thing.
+        distributed.init(dist, cfg.device)
+        distributed.check_same_config(dist, {**dataclasses.asdict(cfg), "resume": resume, "dry_run": dry_run,
+                                             "pretrain": None if plan is None else dataclasses.asdict(plan)})
+        if not dist.main:
+            log = note = None
     if chosen is not None and note:
         why = "no CUDA device" if chosen != "paper" else "a CUDA device is available"
         note(f"stam train: no --preset given and {why}: using the {chosen} preset: {p.describe()}; "
@@ -375,10 +435,22 @@ def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict
     summary = {"preset": p.name, "preset_chosen_by_default": chosen is not None,
                "pretrain": None if plan is None else dataclasses.asdict(plan), "config": dataclasses.asdict(cfg)}
     if dry_run:
+        if dist is not None:
+            summary.update(rank=dist.rank, ranks=dist.world)
+            distributed.close()
         return summary
     if plan is not None:
+        # Under torchrun, rank 0 pretrains while the others wait, then they find its backbone.pt.
+        if dist is not None and not dist.main:
+            distributed.barrier()
         pt = pretrain(cfg.data, out_dir / "pretrain", data=dataset, crop=cfg.crop, onset_threshold=cfg.onset_threshold,
-                      device=cfg.device, progress=cfg.progress, log=log, **dataclasses.asdict(plan))
+                      device=cfg.device, progress=cfg.progress and (dist is None or dist.main), log=log,
+                      **dataclasses.asdict(plan))
+        if dist is not None and dist.main:
+            distributed.barrier()
         summary["pretrain_result"] = pt
-    summary.update(train(cfg, resume=resume, data=dataset, log=log))
+    summary.update(train(cfg, resume=resume, data=dataset, log=log, dist=dist))
+    if dist is not None:
+        summary.update(rank=dist.rank, ranks=dist.world)
+        distributed.close()
     return summary

@@ -43,6 +43,11 @@ def register(sub) -> None:
     p.add_argument("--fidelity", choices=["fast", "balanced", "reference"], help="speed/accuracy level [default: balanced]")
     p.add_argument("--seed", type=int, metavar="N", help="dataset seed [default: 0]")
     p.add_argument("--workers", type=int, metavar="N", default=None, help="worker processes [default: all cores]")
+    p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
+                   help="run each sequence as a Ray task: alone, on a Ray instance started on this machine "
+                        "(--workers CPUs); 'auto', on the cluster `ray start` made here; HOST:PORT, on that "
+                        "head's cluster, whose nodes must all mount --out at the same path (checked first). "
+                        "Same bytes as a local run; needs `make ray` [default: the local worker pool]")
     p.add_argument("--format", choices=["h264", "ffv1", "png"], help="video format: H.264 .mp4, lossless FFV1 .mkv, or PNG frames [default: h264]")
     p.add_argument("--units", type=int, metavar="K",
                    help="draw K sensor units from the profile's [unit_variation] (LEDs, gel, markers, camera; "
@@ -111,6 +116,10 @@ def run_generate(args: argparse.Namespace) -> int:
         raise GelsimError("--workers must be at least 1")
     if args.dry_run:
         return _dry_run(cfg, args)
+    if args.ray is not None:
+        from ..cluster import import_ray
+
+        import_ray()  # not installed: one line, before anything is written
     bar = None
     frames_done = [0]
     t0 = time.perf_counter()
@@ -130,7 +139,7 @@ def run_generate(args: argparse.Namespace) -> int:
 
     try:
         manifest = dataset.generate(cfg, args.out, workers=args.workers, progress=progress,
-                                    previews=not args.no_previews)
+                                    previews=not args.no_previews, ray=args.ray)
     finally:
         if bar is not None:
             bar.close()
@@ -139,7 +148,7 @@ def run_generate(args: argparse.Namespace) -> int:
     summary = {"out": str(args.out), "sequences": len(manifest["sequences"]), "complete": manifest["complete"],
                "frames": sum(s["num_frames"] for s in manifest["sequences"]), "splits": manifest["splits"],
                "wall_s": round(wall, 2), "new_frames_per_s": round(frames_done[0] / wall, 2) if wall > 0 else None,
-               "per_frame_ms": timing}
+               "per_frame_ms": timing, "ray": args.ray}
     if args.json:
         print_json(summary)
     else:

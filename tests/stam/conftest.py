@@ -44,12 +44,19 @@ seeds = 1
 
 
 @pytest.fixture(scope="session")
-def tiny_experiment(synth, tmp_path_factory):
+def tiny_preset(tmp_path_factory):
+    """TINY_PRESET as a preset file."""
+    preset = tmp_path_factory.mktemp("preset") / "tiny.toml"
+    preset.write_text(TINY_PRESET)
+    return preset
+
+
+@pytest.fixture(scope="session")
+def tiny_experiment(synth, tiny_preset, tmp_path_factory):
     from stam.experiment import run_experiment
 
     d = tmp_path_factory.mktemp("exp")
-    preset = d / "tiny.toml"
-    preset.write_text(TINY_PRESET)
+    preset = tiny_preset
     out = d / "out"
     res = run_experiment(str(synth), out, str(preset), log=None)
     return {"out": out, "preset": preset, "result": res, "data": synth}
