@@ -94,12 +94,11 @@ class MacroState:
 
 
 def _closing(img: np.ndarray, k: int) -> np.ndarray:
-    """Grey closing with a k x k square, as separable row/column passes (same result, faster)."""
+    """Grey closing with a k x k square, replicated borders. (OpenCV splits a square kernel into
+    row and column passes itself: one call is 25-45% faster than four 1-D passes, same result.)"""
     if k < 2:
         return img
-    r, c = np.ones((1, k), np.uint8), np.ones((k, 1), np.uint8)
-    d = cv2.dilate(cv2.dilate(img, r, borderType=cv2.BORDER_REPLICATE), c, borderType=cv2.BORDER_REPLICATE)
-    return cv2.erode(cv2.erode(d, r, borderType=cv2.BORDER_REPLICATE), c, borderType=cv2.BORDER_REPLICATE)
+    return cv2.morphologyEx(img, cv2.MORPH_CLOSE, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
 
 
 def _pool(img: np.ndarray, f: int) -> np.ndarray:
@@ -130,8 +129,8 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
     crowns) under the local mean pressure ``p_fine`` (MPa), both float32 (ny, nx).
     ``cloth_mpa_per_mm``: the cloth's secant stiffness at the patch's mean pressure (inf: rigid).
 
-    Returns (g - mean g: the gel surface's oscillation about its local mean, mm; -mean g: how far
-    the crowns stand below that mean, mm, >= 0; the texture-scale contact, bool). The macro solve
+    Returns (g - mean g: the gel surface's oscillation about its local mean, mm; mean g, mm, <= 0:
+    minus how far the crowns stand below that mean; the texture-scale contact, bool). The macro solve
     gives the gel's local *mean* displacement (its q = 0 part carries the load), so the texture
     enters as a zero-mean oscillation about it; the crowns are pushed in -mean g further.
 
@@ -247,7 +246,9 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
         gx = cv2.Sobel(tf, cv2.CV_32F, 1, 0, ksize=1, scale=0.5 / dx)
         gy = cv2.Sobel(tf, cv2.CV_32F, 0, 1, ksize=1, scale=0.5 / dx)
         var_f = np.maximum(smooth(shrink(cv2.multiply(tf, tf))), np.float32(1e-14))
-        g2 = np.maximum(smooth(shrink(cv2.add(cv2.multiply(gx, gx), cv2.multiply(gy, gy)))), np.float32(0.0))
+        g2 = cv2.multiply(gx, gx)
+        cv2.accumulateSquare(gy, g2)
+        g2 = np.maximum(smooth(shrink(g2)), np.float32(0.0))
         g2 *= _sinc_correction(0.5 * g2 / var_f, dx)
         q_f = np.clip(np.sqrt(g2 / var_f), np.float32(2.0 * math.pi / (k * fs * dx)), np.float32(math.pi / dx))
         share_f = share_at(q_f)
@@ -255,9 +256,9 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
         s_f = np.minimum(crown_p / (np.float32(e_star / 4.0) * q_f * np.maximum(4.0 * np.sqrt(var_f) * share_f, 1e-9)),
                          np.float32(S_MAX))
         kept_f = (kept_relief(s_f, None) * share_f).astype(np.float32)
-        g = cv2.add(g, cv2.multiply(cv2.multiply(tf, grow(kept_f)), touch.astype(np.float32)))
+        cv2.add(g, cv2.multiply(tf, grow(kept_f)), g, mask=touch.view(np.uint8))
     gm = grow(smooth(shrink(g)))
-    return cv2.subtract(g, gm), cv2.multiply(gm, -1.0), touch
+    return cv2.subtract(g, gm), gm, touch
 
 
 def _bearing_depth(te: np.ndarray, d_eff: np.ndarray, fs: int, phi: np.ndarray) -> np.ndarray:
@@ -361,7 +362,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         # the holes and pores finer than a coarse cell: mesh contact 0.51 -> 0.38 of the reference's.)
         ke = int(math.ceil(ENVELOPE_SPAN * tex / dx)) | 1
         W0, W1, V0, V1 = max(0, w0 - ke), min(ny, w1 + ke), max(0, v0 - ke), min(nx, v1 + ke)
-        env = _closing(np.ascontiguousarray(work[W0:W1, V0:V1]), ke)[w0 - W0:w1 - W0, v0 - V0:v1 - V0]
+        env = _closing(work[W0:W1, V0:V1], ke)[w0 - W0:w1 - W0, v0 - V0:v1 - V0]
     else:
         env = work[w0:w1, v0:v1]
     dwin = depth[w0:w1, v0:v1]
@@ -383,22 +384,22 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     in_macro = _window_pressure((p > 0).astype(np.float32), f, (r0, c0), win) >= 0.5
     # The gel cannot pass through the object: inside the patch it lies at least as deep as the
     # penetration the gel takes (outside, the elastic displacement alone).
-    np.maximum(dwin, np.where(in_macro, pen_env, np.float32(0.0)), out=dwin)
+    cv2.max(dwin, cv2.multiply(pen_env, in_macro.view(np.uint8), dtype=cv2.CV_32F), dwin)
     p_win = cv2.max(_window_pressure(p.astype(np.float32), f, (r0, c0), win), 0.0)
     if has_texture:
-        t = cv2.subtract(np.ascontiguousarray(work[w0:w1, v0:v1]), env)
+        t = cv2.subtract(work[w0:w1, v0:v1], env)
         cloth = math.inf
         if support is not None:  # the cloth's secant stiffness at the patch's mean pressure, MPa/mm
             n = max(int(np.count_nonzero(p > 0)), 1)
             cloth = 1e-3 * support.secant_stiffness_kpa_per_mm(1e3 * force / (area * n))
-        g, sink, touch = _texture_depth(t, p_win, dx, gel, support, tex, cloth)
-        g[~in_macro] = 0.0
-        dwin += g
-        np.maximum(dwin, 0.0, out=dwin)
+        g, mean_g, touch = _texture_depth(t, p_win, dx, gel, support, tex, cloth)
+        cv2.add(dwin, g, dwin, mask=in_macro.view(np.uint8))
+        cv2.max(dwin, 0.0, dwin)
         mask[w0:w1, v0:v1] = in_macro & touch
         # The approach is the crowns': the macro one plus their sink below the mean surface there.
-        top = np.unravel_index(int(np.argmax(np.where(in_macro, env, -np.inf))), t.shape)
-        delta = float(delta) + float(sink[top])
+        if in_macro.any():
+            _, _, _, (tx, ty) = cv2.minMaxLoc(env, mask=in_macro.view(np.uint8))
+            delta = float(delta) - float(mean_g[ty, tx])
     else:
         mask[w0:w1, v0:v1] = in_macro
     # The pad's travel bounds the depth (the macro solve's 1e-3 tolerance may overshoot it by a hair).
