@@ -123,10 +123,11 @@ def _upsample(coarse: np.ndarray, f: int, shape: tuple[int, int]) -> np.ndarray:
     return up[: shape[0], : shape[1]]
 
 
-def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: FabricSupport | None,
+def _texture_depth(t: np.ndarray, pressure_at, dx: float, gel, support: FabricSupport | None,
                    texture_mm: float, cloth_mpa_per_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The texture's part of the gel surface for the texture ``t`` (mm, <= 0: depth below the
-    crowns) under the local mean pressure ``p_fine`` (MPa), both float32 (ny, nx).
+    crowns), float32 (ny, nx), under the local mean pressure: ``pressure_at((cols, rows))`` gives it
+    (MPa, float32 (rows, cols)) at the centres of a grid of cells tiling ``t``.
     ``cloth_mpa_per_mm``: the cloth's secant stiffness at the patch's mean pressure (inf: rigid).
 
     Returns (g - mean g: the gel surface's oscillation about its local mean, mm; mean g, mm, <= 0:
@@ -223,7 +224,7 @@ def _texture_depth(t: np.ndarray, p_fine: np.ndarray, dx: float, gel, support: F
     depth = np.sqrt(var) * (np.float32(4.0) - np.float32(4.0 - 2.0 * math.sqrt(2.0)) * aniso)
     share = share_at(q)
     d_eff = np.maximum(depth * share, np.float32(1e-9))
-    p_small = shrink(p_fine)
+    p_small = pressure_at(cs)
     s = np.minimum(p_small / (np.float32(e_star / 4.0) * q * d_eff), np.float32(S_MAX))
     tables = TableLookup(s, aniso)
     lam = tables.blend("lam")
@@ -385,14 +386,14 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     # The gel cannot pass through the object: inside the patch it lies at least as deep as the
     # penetration the gel takes (outside, the elastic displacement alone).
     cv2.max(dwin, cv2.multiply(pen_env, in_macro.view(np.uint8), dtype=cv2.CV_32F), dwin)
-    p_win = cv2.max(_window_pressure(p.astype(np.float32), f, (r0, c0), win), 0.0)
     if has_texture:
         t = cv2.subtract(work[w0:w1, v0:v1], env)
         cloth = math.inf
         if support is not None:  # the cloth's secant stiffness at the patch's mean pressure, MPa/mm
             n = max(int(np.count_nonzero(p > 0)), 1)
             cloth = 1e-3 * support.secant_stiffness_kpa_per_mm(1e3 * force / (area * n))
-        g, mean_g, touch = _texture_depth(t, p_win, dx, gel, support, tex, cloth)
+        g, mean_g, touch = _texture_depth(t, lambda cs: _cell_pressure(p, f, (r0, c0), win, cs), dx, gel,
+                                          support, tex, cloth)
         cv2.add(dwin, g, dwin, mask=in_macro.view(np.uint8))
         cv2.max(dwin, 0.0, dwin)
         mask[w0:w1, v0:v1] = in_macro & touch
@@ -515,6 +516,45 @@ def _window_pressure(p: np.ndarray, f: int, origin, win) -> np.ndarray:
     up = _upsample(sub, f, ((i1 - i0) * f, (j1 - j0) * f))
     oy, ox = w0 - (r0 + i0 * f), v0 - (c0 + j0 * f)
     return np.ascontiguousarray(up[oy:oy + w1 - w0, ox:ox + v1 - v0])
+
+
+def _cell_pressure(p: np.ndarray, f: int, origin, win, cs: tuple[int, int]) -> np.ndarray:
+    """The coarse pressure ``p`` (MPa; grid of ``f``-pixel blocks from fine pixel ``origin``) read as
+    :func:`_window_pressure` reads it at the fine pixels of ``win`` = (w0, w1, v0, v1), then averaged
+    over ``cs`` = (cols, rows) cells tiling the window as OpenCV's INTER_AREA does: float32
+    (rows, cols). Both steps are linear and separable, so they are done on the coarse grid by two
+    small matrices (the fine field and its average took two full-window passes)."""
+    w0, w1, v0, v1 = win
+    cols, rows = cs
+    ry = _cell_means(_bilinear_matrix((np.arange(w0, w1) + 0.5 - origin[0]) / f - 0.5, p.shape[0]), rows)
+    rx = _cell_means(_bilinear_matrix((np.arange(v0, v1) + 0.5 - origin[1]) / f - 0.5, p.shape[1]), cols)
+    # OpenCV's product runs on the worker's one thread (numpy's BLAS may start threads at these sizes).
+    out = cv2.gemm(cv2.gemm(ry, p.astype(np.float64), 1.0, None, 0.0), rx, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
+    return np.maximum(out, 0.0).astype(np.float32)
+
+
+def _bilinear_matrix(coords: np.ndarray, n: int) -> np.ndarray:
+    """(len(coords), n): linear interpolation weights of samples 0..n-1 at ``coords`` (sample units),
+    zero weight for samples beyond 0..n-1 (a zero border)."""
+    i0 = np.floor(coords).astype(np.intp)
+    w = coords - i0
+    m = np.zeros((len(coords), n + 2))   # one spare column on each side, dropped below
+    r = np.arange(len(coords))
+    m[r, np.clip(i0 + 1, 0, n + 1)] += 1.0 - w
+    m[r, np.clip(i0 + 2, 0, n + 1)] += w
+    return m[:, 1:n + 1]
+
+
+def _cell_means(rows_px: np.ndarray, cells: int) -> np.ndarray:
+    """The rows of ``rows_px`` (one per pixel, n pixels) averaged over ``cells`` equal cells tiling the
+    n pixels, each pixel weighted by its overlap with the cell (OpenCV's INTER_AREA; a block mean
+    when ``cells`` divides n): (cells, columns), by differences of the running sum."""
+    n = rows_px.shape[0]
+    run = np.concatenate([np.zeros((1, rows_px.shape[1])), np.cumsum(rows_px, axis=0)])
+    edges = np.arange(cells + 1) * (n / cells)
+    i = np.minimum(np.floor(edges).astype(np.intp), n - 1)
+    at = run[i] + (edges - i)[:, None] * rows_px[i]        # the running sum at a fractional edge
+    return (at[1:] - at[:-1]) / (n / cells)
 
 
 def _macro_operator(shape, cm: float, gel, support: FabricSupport | None, p: np.ndarray,

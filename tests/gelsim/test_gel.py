@@ -279,3 +279,21 @@ def test_an_incompressible_cloth_is_rigid_even_when_its_compression_underflows(c
     s = FabricSupport(0.5, compressibility, 1.0)
     assert s.secant_stiffness_kpa_per_mm(2.0) == math.inf
     assert FabricSupport(0.5, 0.3, 1.0).secant_stiffness_kpa_per_mm(2.0) < math.inf
+
+
+@pytest.mark.parametrize("win, cs", [((10, 700, 20, 800), (260, 230)), ((0, 37, 5, 90), (17, 7)), ((3, 9, 0, 8), (8, 6))])
+def test_cell_pressure_is_the_cell_mean_of_the_fine_field(win, cs):
+    """The texture statistics' pressure straight from the coarse grid equals the fine field's cell
+    means (window_pressure, then OpenCV's INTER_AREA), non-dividing cells included."""
+    import cv2
+
+    from gelsim.gel.twoscale import _cell_pressure, _window_pressure
+
+    rng = np.random.default_rng(4)
+    p = np.where(rng.random((50, 55)) > 0.3, rng.random((50, 55)), 0.0)
+    f, origin = 15, (-12, 4)
+    fine = _window_pressure(p.astype(np.float32), f, origin, win)
+    want = cv2.resize(fine, cs, interpolation=cv2.INTER_AREA) if fine.shape[::-1] != cs else fine
+    got = _cell_pressure(p, f, origin, win, cs)
+    assert got.shape == want.shape
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)
