@@ -529,32 +529,26 @@ def _cell_pressure(p: np.ndarray, f: int, origin, win, cs: tuple[int, int]) -> n
     ry = _cell_means(_bilinear_matrix((np.arange(w0, w1) + 0.5 - origin[0]) / f - 0.5, p.shape[0]), rows)
     rx = _cell_means(_bilinear_matrix((np.arange(v0, v1) + 0.5 - origin[1]) / f - 0.5, p.shape[1]), cols)
     # OpenCV's product runs on the worker's one thread (numpy's BLAS may start threads at these sizes).
-    out = cv2.gemm(cv2.gemm(ry, p.astype(np.float64), 1.0, None, 0.0), rx, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
-    return np.maximum(out, 0.0).astype(np.float32)
+    out = cv2.gemm(cv2.gemm(ry, p.astype(np.float32), 1.0, None, 0.0), rx, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
+    return np.maximum(out, np.float32(0.0))
 
 
 def _bilinear_matrix(coords: np.ndarray, n: int) -> np.ndarray:
-    """(len(coords), n): linear interpolation weights of samples 0..n-1 at ``coords`` (sample units),
+    """float32 (len(coords), n): linear interpolation weights of samples 0..n-1 at ``coords`` (sample units),
     zero weight for samples beyond 0..n-1 (a zero border)."""
     i0 = np.floor(coords).astype(np.intp)
-    w = coords - i0
-    m = np.zeros((len(coords), n + 2))   # one spare column on each side, dropped below
+    w = (coords - i0).astype(np.float32)
+    m = np.zeros((len(coords), n + 2), np.float32)   # one spare column on each side, dropped below
     r = np.arange(len(coords))
     m[r, np.clip(i0 + 1, 0, n + 1)] += 1.0 - w
     m[r, np.clip(i0 + 2, 0, n + 1)] += w
-    return m[:, 1:n + 1]
+    return np.ascontiguousarray(m[:, 1:n + 1])
 
 
 def _cell_means(rows_px: np.ndarray, cells: int) -> np.ndarray:
-    """The rows of ``rows_px`` (one per pixel, n pixels) averaged over ``cells`` equal cells tiling the
-    n pixels, each pixel weighted by its overlap with the cell (OpenCV's INTER_AREA; a block mean
-    when ``cells`` divides n): (cells, columns), by differences of the running sum."""
-    n = rows_px.shape[0]
-    run = np.concatenate([np.zeros((1, rows_px.shape[1])), np.cumsum(rows_px, axis=0)])
-    edges = np.arange(cells + 1) * (n / cells)
-    i = np.minimum(np.floor(edges).astype(np.intp), n - 1)
-    at = run[i] + (edges - i)[:, None] * rows_px[i]        # the running sum at a fractional edge
-    return (at[1:] - at[:-1]) / (n / cells)
+    """The rows of ``rows_px`` (one per pixel) averaged over ``cells`` equal cells tiling them, as
+    OpenCV's INTER_AREA averages pixels (the same call: a narrow image of a few columns)."""
+    return cv2.resize(rows_px, (rows_px.shape[1], cells), interpolation=cv2.INTER_AREA)
 
 
 def _macro_operator(shape, cm: float, gel, support: FabricSupport | None, p: np.ndarray,
