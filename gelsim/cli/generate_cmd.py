@@ -180,12 +180,13 @@ def _dry_run(cfg, args) -> int:
     catalog = load_catalog()
     profile = dataset.resolve_profile(cfg)
     dataset.unit_profiles(cfg, profile)  # a profile without [unit_variation] fails here
+    from ..fidelity import get_fidelity
+
+    dataset.check_render(cfg, get_fidelity(cfg.fidelity))  # and a device this machine lacks
     specs = dataset.plan(cfg, len(catalog))
     frames = sum(s.num_frames for s in specs)
     w, h = profile.image.width_px, profile.image.height_px
     nbytes = dataset.estimate_bytes(specs, cfg.format, w, h)
-    from ..fidelity import get_fidelity
-
     fid = get_fidelity(cfg.fidelity)
     workers = args.workers or os.cpu_count() or 1
     est_s = frames * fid.est_ms_per_frame_vga * (w * h) / (640 * 480) / 1000 / workers
