@@ -219,6 +219,19 @@ def box_mask(pos, margin: int):
     return (rows[:, :, None] & cols[:, None, :])[:, None]
 
 
+def mix_channels(maps: list, matrix: np.ndarray):
+    """Per-pixel colour mix ``out[:, c] = sum_k maps[k] * matrix[k, c]``, summed in ``k`` order: ``(B, C, h, w)``
+    from ``K`` maps ``(B, h, w)`` and a ``(K, C)`` matrix (cv2.transform's, written out)."""
+    torch = _torch()
+    out = []
+    for c in range(matrix.shape[1]):
+        acc = maps[0] * float(matrix[0, c])
+        for k in range(1, len(maps)):
+            acc = acc + maps[k] * float(matrix[k, c])
+        out.append(acc)
+    return torch.stack(out, dim=1)
+
+
 # ---------------------------------------------------------------- the shader
 
 class TorchShader(Shader):
@@ -336,13 +349,7 @@ class TorchShader(Shader):
                 # float64 power rounded to float32: the same value whichever kernel computes it
                 dl = dl + (r.double() ** self._shininess).float() * ks
             dls.append(torch.where(near, dl - flat, 0.0))
-        out = []
-        for c in range(3):
-            acc = dls[0] * float(self._color[c, 0])
-            for i in range(1, len(dls)):
-                acc = acc + dls[i] * float(self._color[c, i])
-            out.append(acc)
-        return torch.stack(out, dim=1)
+        return mix_channels(dls, self._color.T)
 
     def _shadows(self, d, blur_sigma_px: float):
         """The LED shadows (:meth:`LutShader._shadows`), blurred by their penumbra and the camera:
@@ -368,14 +375,7 @@ class TorchShader(Shader):
                 continue
             occ = _occlusion(hg, float(phi), rise, hi - lo)
             chans.append(torch.where(casts[:, None, None], occ / (occ + sat), 0.0))
-        rgb = self._shadow_rgb                                        # (K, 3)
-        small = []
-        for c in range(3):
-            acc = chans[0] * float(rgb[0, c])
-            for k in range(1, len(chans)):
-                acc = acc + chans[k] * float(rgb[k, c])
-            small.append(acc)
-        small = torch.stack(small, dim=1)
+        small = mix_channels(chans, self._shadow_rgb)                # (B, 3, hs, ws)
         sigma = math.hypot(s["shadow_soft_mm"] / self.mm, blur_sigma_px) / factor
         if sigma > 0.3:     # as the fast backend: below a third of a grid pixel a blur changes nothing visible
             small = gaussian(small, sigma, border="constant")
@@ -399,14 +399,7 @@ class TorchShader(Shader):
             gate = torch.clamp(sp * (1.0 / halo["halo_gate_mm"]), max=1.0)
             gx, gy = sobel(b, 1.0 / (8.0 * gmm))
             feats += [gx * gate, gy * gate, sp]
-        mix = self._coarse_mix                                        # (k, 3)
-        small = []
-        for c in range(3):
-            acc = feats[0] * float(mix[0, c])
-            for k in range(1, len(feats)):
-                acc = acc + feats[k] * float(mix[k, c])
-            small.append(acc)
-        small = torch.stack(small, dim=1)                             # (B, 3, hs, ws)
+        small = mix_channels(feats, self._coarse_mix)                 # (B, 3, hs, ws)
         seen = small.abs().amax(dim=(1, 2, 3)) >= COARSE_SKIP_DN      # per frame
         small = small * seen[:, None, None, None]
         return upsample(small, f, tuple(d.shape[1:]))
@@ -553,7 +546,6 @@ class BatchRenderer:
 
     def compose(self, depth: np.ndarray, corners: np.ndarray | None):
         """The noiseless float frames ``(B, 3, H, W)`` DN on the device, from :meth:`stage`'s arrays."""
-        torch = _torch()
         d = self._to_device(depth)
         s = self.s
         if s > 1:
