@@ -34,6 +34,7 @@ the caller's numpy generator in the order the numpy renderer draws them.
 from __future__ import annotations
 
 import math
+import os
 import queue
 import threading
 from typing import Callable
@@ -86,6 +87,9 @@ def resolve_device(name: str | None = None):
         return dev
     if dev.type != "cuda":
         raise GelsimError(f"--device {text!r} is not supported; give cpu or cuda (or cuda:N)")
+    # Ask NVML rather than the CUDA driver, which would be initialised in this process by the question:
+    # `gelsim generate` forks its workers from it, and a forked child cannot use a parent's CUDA.
+    os.environ.setdefault("PYTORCH_NVML_BASED_CUDA_CHECK", "1")
     if not torch.cuda.is_available():
         build = "built without CUDA" if torch.version.cuda is None else f"CUDA {torch.version.cuda}, no GPU visible"
         raise GelsimError(f"--device {text}: no CUDA device on this machine (torch {torch.__version__}, {build}); "
@@ -115,14 +119,10 @@ def _shifted_sum(x, taps: list[float], dim: int, border: str):
     if r == 0:
         return x * taps[0]
     n = x.shape[dim]
-    idx = torch.arange(-r, n + r, device=x.device)
-    if border == "replicate":
-        xp = x.index_select(dim, idx.clamp(0, n - 1))
-    else:
-        shape = list(x.shape)
-        shape[dim] = r
-        zeros = x.new_zeros(shape)
-        xp = torch.cat([zeros, x, zeros], dim=dim)
+    h, w = x.shape[-2:]
+    pad = (r, r, 0, 0) if dim in (-1, x.dim() - 1) else (0, 0, r, r)
+    xp = torch.nn.functional.pad(x.reshape(-1, 1, h, w), pad, mode=border)   # exact copies
+    xp = xp.reshape(*x.shape[:-2], *xp.shape[-2:])
     out = xp.narrow(dim, 0, n) * taps[0]
     tmp = torch.empty_like(out)
     for i in range(1, len(taps)):
@@ -185,21 +185,32 @@ def upsample(x, f: int, shape: tuple[int, int]):
 
 def _linear_axis(x, f: int, n: int, dim: int):
     """One axis of :func:`upsample`: fine pixel ``i`` reads coarse ``(i + 1/2) / f - 1/2``, clamped to the
-    first and last coarse pixel (which are then read alone, with weight 1)."""
+    first and last coarse pixel (which are then read alone, with weight 1). Computed per phase ``i mod
+    f``, whose two neighbours and weights are the same all along the axis."""
     torch = _torch()
     m = x.shape[dim]
-    src = np.clip((np.arange(n, dtype=np.float64) + 0.5) / f - 0.5, 0.0, None)
-    i0 = np.floor(src).astype(np.int64)
-    w1 = np.where(i0 >= m - 1, 0.0, src - i0).astype(np.float32)
-    i0 = np.minimum(i0, m - 1)
-    i1 = np.minimum(i0 + 1, m - 1)
-    shape = [1] * x.dim()
-    shape[dim] = n                                       # broadcast along every other dimension
-    w1t = torch.from_numpy(w1).to(x.device).reshape(shape)
-    w0t = torch.from_numpy((1.0 - w1).astype(np.float32)).to(x.device).reshape(shape)
-    a = x.index_select(dim, torch.from_numpy(i0).to(x.device))
-    b = x.index_select(dim, torch.from_numpy(i1).to(x.device))
-    return a * w0t + b * w1t
+    h, w = x.shape[-2:]
+    pad = (1, 1, 0, 0) if dim in (-1, x.dim() - 1) else (0, 0, 1, 1)
+    xp = torch.nn.functional.pad(x.reshape(-1, 1, h, w), pad, mode="replicate")
+    xp = xp.reshape(*x.shape[:-2], *xp.shape[-2:])          # xp[j + 1] = x[j], replicated at both ends
+    shape = list(x.shape)
+    shape[dim] = m * f
+    out = x.new_empty(shape)
+    for r in range(f):
+        t = (r + 0.5) / f - 0.5                              # the phase's offset from its coarse pixel
+        lo, w1 = (1, t) if t >= 0 else (0, 1.0 + t)          # read pixels j and j + 1, or j - 1 and j
+        w0 = float(np.float32(1.0 - w1))
+        w1 = float(np.float32(w1))
+        dst = out.narrow(dim, r, m * f - r)[(slice(None),) * (dim % x.dim()) + (slice(None, None, f),)]
+        dst.copy_(xp.narrow(dim, lo, m) * w0 + xp.narrow(dim, lo + 1, m) * w1)
+    first = int(math.ceil((f - 1) / 2.0))                    # fine pixels left of coarse pixel 0's centre
+    if first:
+        out.narrow(dim, 0, first).copy_(x.narrow(dim, 0, 1).expand_as(out.narrow(dim, 0, first)))
+    last = int(math.ceil((m - 0.5) * f - 0.5))               # from here on, right of the last one's centre
+    if last < m * f:
+        tail = out.narrow(dim, last, m * f - last)
+        tail.copy_(x.narrow(dim, m - 1, 1).expand_as(tail))
+    return out.narrow(dim, 0, n)
 
 
 def box_mask(pos, margin: int):
