@@ -313,10 +313,10 @@ def _worker_init(config: GenerateConfig, root: str) -> None:
     fidelity = get_fidelity(config.fidelity)
     _WORKER.update(config=config, root=Path(root), catalog=load_catalog(), profile=profile, fidelity=fidelity,
                    ranges=load_motion_ranges(), units=unit_profiles(config, profile), unit_renderers={})
-    if config.render_backend(fidelity) == "torch" and config.device in (None, "cpu"):
+    if config.render_backend(fidelity) == "torch":
         import torch
 
-        torch.set_num_threads(1)  # one process per core, as for OpenCV
+        torch.set_num_threads(1)  # one process per core, as for OpenCV (a GPU does the heavy work)
     _WORKER["renderer"] = _renderer(profile)
 
 
@@ -348,10 +348,10 @@ def _unit(k: int):
     return w["units"][k], w["unit_renderers"][k]
 
 
-def _render_frames(renderer, writer, sequence: Callable) -> float:
-    """Render the frames of ``sequence(renderer)`` (a :func:`gelsim.sequence.render_sequence` call) into
-    ``writer``; returns the CPU seconds spent encoding. A BatchRenderer (torch backend) renders them
-    ``config.batch`` at a time while a writer thread encodes the previous batch."""
+def _render_frames(renderer, writer, sequence: Callable, out) -> float:
+    """Render the frames of ``sequence(renderer)`` (a :func:`gelsim.sequence.render_sequence` call filling
+    ``out``) into ``writer``; returns the CPU seconds spent encoding. A BatchRenderer (torch backend)
+    renders them ``config.batch`` at a time while a writer thread encodes the previous batch."""
     from .optics.torch_backend import DEFAULT_BATCH, BatchRenderer, FrameBatcher
     from .sequence import stage_clock
 
@@ -360,6 +360,9 @@ def _render_frames(renderer, writer, sequence: Callable) -> float:
         with FrameBatcher(renderer, _WORKER["config"].batch or DEFAULT_BATCH, writer.write) as frames:
             for _ in sequence(frames):
                 pass
+            t = stage_clock()
+            frames.close()                                  # the last batch, after the sequence's end
+            out.timings_s["optics"] = out.timings_s.get("optics", 0.0) + stage_clock() - t
         return frames.sink_seconds
     for frame in sequence(renderer):
         te = stage_clock()
@@ -389,7 +392,7 @@ def generate_sequence(spec: SequenceSpec) -> dict:
     vpath = root / video_path(spec.video_stem(), config.format)
     with VideoWriter(vpath, fmt=config.format, fps=profile.image.fps_hz) as writer:
         encode_s = _render_frames(renderer, writer, lambda r: render_sequence(
-            fabric, motion, profile, fidelity, seed=spec.seed, renderer=r, sensor_seed=config.seed, out=out))
+            fabric, motion, profile, fidelity, seed=spec.seed, renderer=r, sensor_seed=config.seed, out=out), out)
     te = stage_clock()
     lpath = root / spec.labels_rel()
     atomic_write_npz(lpath, **out.labels)

@@ -683,6 +683,7 @@ class FrameBatcher:
         self._inflight = None
         self._queue: queue.Queue = queue.Queue(maxsize=2)
         self._error: BaseException | None = None
+        self._closed = False
         self.sink_seconds = 0.0
         self._writer = threading.Thread(target=self._write, name="gelsim-frame-writer", daemon=True)
         self._writer.start()
@@ -745,7 +746,10 @@ class FrameBatcher:
         self._queue.put(frames.numpy())
 
     def close(self) -> None:
-        """Render what is queued, hand every frame to the writer and wait for it."""
+        """Render what is queued, hand every frame to the writer and wait for it (once; again: nothing)."""
+        if self._closed:
+            return
+        self._closed = True
         try:
             if self._error is None:
                 self._launch()
@@ -762,7 +766,8 @@ class FrameBatcher:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
             self.close()
-        else:                                 # the caller's error wins; stop the writer quietly
+        elif not self._closed:                # the caller's error wins; stop the writer quietly
+            self._closed = True
             self._depths = []
             self._inflight = None
             self._queue.put(None)
