@@ -1,8 +1,12 @@
 """Process settings for frame-by-frame work on one core (generation workers, benchmarks).
 
-Two settings, applied by :func:`configure_worker`:
+Three settings, applied by :func:`configure_worker`:
 
 * **OpenCV on one thread.** One process per core: OpenCV's own threads would oversubscribe.
+* **BLAS on one thread.** numpy and OpenCV each bundle an OpenBLAS whose threads, once started by a
+  mid-sized product (a 240x55 by 55x280 one is enough), spin between calls: measured, a worker
+  whose frame ran two such products used 76 ms of CPU for 37 ms of its own work. Both are set to
+  one thread through OpenBLAS's ``*_set_num_threads`` (as threadpoolctl does; no new dependency).
 * **Keep freed arrays on the heap (glibc).** A frame allocates dozens of short-lived arrays of a
   few MB. glibc serves allocations above its mmap threshold with fresh ``mmap`` pages, which the
   kernel zeroes and faults in on first touch: measured on a 960x720 fabric press, that overhead
@@ -46,12 +50,43 @@ def keep_heap() -> bool:
         return False
 
 
+# OpenBLAS builds name their thread setter differently (64-bit-index builds of scipy-openblas add a
+# prefix and a suffix).
+_BLAS_SETTERS = ("openblas_set_num_threads", "scipy_openblas_set_num_threads64_", "openblas_set_num_threads64_",
+                 "scipy_openblas_set_num_threads")
+
+
+def single_thread_blas() -> int:
+    """Set every OpenBLAS loaded in this process to one thread; returns how many were set (0 where
+    none is loaded or the platform has no /proc/self/maps)."""
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = {line.split()[-1] for line in fh if "openblas" in line.lower() and "/" in line}
+    except OSError:
+        return 0
+    done = 0
+    for path in sorted(paths):
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for name in _BLAS_SETTERS:
+            fn = getattr(lib, name, None)
+            if fn is not None:
+                fn(ctypes.c_int(1))
+                done += 1
+                break
+    return done
+
+
 def configure_worker() -> None:
-    """One-core frame work: OpenCV on one thread, freed arrays kept on the heap. Idempotent."""
+    """One-core frame work: OpenCV and BLAS on one thread, freed arrays kept on the heap. Idempotent."""
     global _configured
     import cv2
+    import numpy  # noqa: F401  (loads numpy's OpenBLAS, so that it is found below)
 
     cv2.setNumThreads(1)
     if not _configured:
         keep_heap()
+        single_thread_blas()
         _configured = True

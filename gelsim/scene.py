@@ -269,23 +269,45 @@ class HeightPatch:
 
 
 def travel_patch(obj: TouchedObject, motion, profile, mm_per_px: float, *, seed: int,
-                 snap: bool = False) -> HeightPatch:
-    """``obj``'s heights over the sensor's travel in ``motion`` plus its field's circumscribed circle
-    (so twist and tilt stay covered) and two cells, at ``mm_per_px``, turned by the motion's
-    ``fabric_rotation_deg``. ``snap``: put the origin on the object's own grid of ``mm_per_px``
-    cells (the physics grid: a max-pool then sees the same cells wherever the sensor goes)."""
-    xmin, ymin, xmax, ymax = motion.travel_bounds_mm()
+                 snap: bool = False, poses: tuple[np.ndarray, np.ndarray] | None = None) -> HeightPatch:
+    """``obj``'s heights over the region the sensor's field sweeps in ``motion``, plus two cells, at
+    ``mm_per_px``, turned by the motion's ``fabric_rotation_deg``.
+
+    ``poses``: the frames' sensor positions (T, >= 2) mm and yaws (T,) degrees when known (after the
+    contact simulation): the region is then what the field's rectangle covers at those poses (a
+    press's patch is about half the area of the circle a twist needs, and the heights are its
+    costliest per-sequence step). Without them: the motion's travel plus the field's circumscribed
+    circle (so any twist and tilt stay covered). ``snap``: put the origin on the object's own grid
+    of ``mm_per_px`` cells (the physics grid: a max-pool then sees the same cells wherever the
+    sensor goes)."""
     fw, fh = profile.field_mm
-    r = 0.5 * math.hypot(fw, fh) + 2 * mm_per_px
-    if snap:
-        x0 = math.floor((xmin - r) / mm_per_px) * mm_per_px
-        y0 = math.floor((ymin - r) / mm_per_px) * mm_per_px
-        w = int(math.ceil((xmax + r - x0) / mm_per_px)) + 1
-        h = int(math.ceil((ymax + r - y0) / mm_per_px)) + 1
+    margin = 2 * mm_per_px
+    if poses is not None:
+        xy, yaw = np.asarray(poses[0], np.float64)[:, :2], np.radians(np.asarray(poses[1], np.float64))
+        # Centres of the image's corner pixels (see HeightPatch.sample) at every pose.
+        s = profile.image.mm_per_px
+        h_px, w_px = profile.shape
+        hx, hy = (w_px - 1) / 2.0 * s, (h_px - 1) / 2.0 * s
+        cu = np.array([-hx, hx, -hx, hx])[None, :]
+        cv = np.array([-hy, -hy, hy, hy])[None, :]
+        c, sn = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        xs = xy[:, :1] + c * cu - sn * cv
+        ys = xy[:, 1:2] + sn * cu + c * cv
+        xmin, xmax = float(xs.min()) - margin, float(xs.max()) + margin
+        ymin, ymax = float(ys.min()) - margin, float(ys.max()) + margin
     else:
-        x0, y0 = xmin - r, ymin - r
-        w = int(math.ceil((xmax - xmin + 2 * r) / mm_per_px)) + 1
-        h = int(math.ceil((ymax - ymin + 2 * r) / mm_per_px)) + 1
+        xmin, ymin, xmax, ymax = motion.travel_bounds_mm()
+        r = 0.5 * math.hypot(fw, fh) + margin
+        xmin, ymin, xmax, ymax = xmin - r, ymin - r, xmax + r, ymax + r
+    if snap:
+        x0 = math.floor(xmin / mm_per_px) * mm_per_px
+        y0 = math.floor(ymin / mm_per_px) * mm_per_px
+        w = int(math.ceil((xmax - x0) / mm_per_px)) + 1
+        h = int(math.ceil((ymax - y0) / mm_per_px)) + 1
+    else:
+        x0, y0 = xmin, ymin
+        w = int(math.ceil((xmax - xmin) / mm_per_px)) + 1
+        h = int(math.ceil((ymax - ymin) / mm_per_px)) + 1
     hf = obj.heights(x0, y0, w, h, mm_per_px, seed=seed, rotation_deg=motion.fabric_rotation_deg)
     return HeightPatch(np.asarray(hf, dtype=np.float32), (x0, y0), mm_per_px)
 

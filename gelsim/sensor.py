@@ -55,9 +55,14 @@ class GelSpec:
     def sag_mm(self, x_mm, y_mm):
         """Height of the undeformed gel surface below its apex at sensor-frame points (mm, >= 0);
         0 for a flat gel. The paraboloid r^2 / 2R (a sphere's cap to < 0.1% at r / R < 0.15)."""
-        if not self.dome_radius_mm:
+        return GelSpec.sag_mm_of(self.dome_radius_mm, x_mm, y_mm)
+
+    @staticmethod
+    def sag_mm_of(dome_radius_mm: float, x_mm, y_mm):
+        """:meth:`sag_mm` of a gel whose dome has radius ``dome_radius_mm`` (0 = flat)."""
+        if not dome_radius_mm:
             return 0.0 * (x_mm + y_mm)
-        return (x_mm * x_mm + y_mm * y_mm) / (2.0 * self.dome_radius_mm)
+        return (x_mm * x_mm + y_mm * y_mm) / (2.0 * dome_radius_mm)
 
 
 @dataclass(frozen=True)

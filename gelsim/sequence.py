@@ -156,7 +156,8 @@ def render_sequence(obj: TouchedObject, motion: Motion, profile: SensorProfile, 
     # The image-resolution patch is the costliest fabric step: built only if some frame presses.
     touches = bool(np.any(contact.in_contact & (contact.normal_force_n > 0)))
     if patch is None and want_imprint and (touches or not shortcuts):
-        patch = travel_patch(obj, motion, profile, profile.image.mm_per_px, seed=seed)
+        patch = travel_patch(obj, motion, profile, profile.image.mm_per_px, seed=seed,
+                             poses=(contact.position_mm, contact.yaw_deg))
     t = timer.add("fabric", t)
 
     markers_on = profile.markers.enabled and want_markers

@@ -26,6 +26,7 @@ touched region only unless ``window="full"``.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -100,14 +101,24 @@ def measure_contact_radius_mm(imprint: Imprint, mm_per_px: float) -> float:
 
 def gel_sag_mm(profile, shape: tuple[int, int] | None = None) -> np.ndarray | None:
     """The undeformed gel surface's depth below its apex on a grid of ``shape`` (default the
-    profile's image) over the profile's field, float32 mm; None for a flat gel."""
+    profile's image) over the profile's field, float32 mm, read-only (cached: every frame of a
+    sequence needs the same one); None for a flat gel."""
     if not profile.gel.dome_radius_mm:
         return None
     h, w = shape or profile.shape
     fw, fh = profile.field_mm
+    return _sag_grid(float(profile.gel.dome_radius_mm), float(fw), float(fh), int(h), int(w))
+
+
+@functools.lru_cache(maxsize=8)
+def _sag_grid(dome_radius_mm: float, fw: float, fh: float, h: int, w: int) -> np.ndarray:
+    from ..sensor import GelSpec
+
     x = ((np.arange(w, dtype=np.float32) + 0.5) / w - 0.5) * np.float32(fw)
     y = ((np.arange(h, dtype=np.float32) + 0.5) / h - 0.5) * np.float32(fh)
-    return profile.gel.sag_mm(x[None, :], y[:, None]).astype(np.float32)
+    sag = GelSpec.sag_mm_of(dome_radius_mm, x[None, :], y[:, None]).astype(np.float32)
+    sag.flags.writeable = False
+    return sag
 
 
 def _check_inputs(protrusion_mm, force_n, depth_mm, texture_mm):

@@ -175,7 +175,7 @@ class MapTable:
 
 @functools.cache
 def map_tables() -> dict[str, MapTable]:
-    """The '1d' and '2d' tables from ``assets/johnson.toml``."""
+    """The '1d' and '2d' tables from ``assets/johnson.toml`` (both on one grid of s)."""
     data = load_toml(TABLE_FILE)
     out = {}
     for kind in ("1d", "2d"):
@@ -188,7 +188,92 @@ def map_tables() -> dict[str, MapTable]:
             raise GelsimError(f"{TABLE_FILE} [{kind}]: columns must have equal length >= 2 and increasing s; "
                               "regenerate with tools/johnson_tables.py")
         out[kind] = MapTable(**cols)
+    if not np.array_equal(out["1d"].s, out["2d"].s):
+        raise GelsimError(f"{TABLE_FILE}: [1d] and [2d] must share one column s; regenerate with tools/johnson_tables.py")
     return out
+
+
+@functools.cache
+def _segments() -> tuple["_Grid", dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]]:
+    """The tables as float32 line segments: their grid of s, and per (kind, column) each segment's
+    start value and slope per unit of s."""
+    tabs = map_tables()
+    s = tabs["1d"].s
+    seg = {}
+    for kind, tab in tabs.items():
+        for key in ("contact_fraction", "kept", "zeta", "lam"):
+            v = getattr(tab, key)
+            seg[kind, key] = (v[:-1].astype(np.float32), (np.diff(v) / np.diff(s)).astype(np.float32))
+    return _Grid(s), seg
+
+
+class _Grid:
+    """A sorted grid's segment lookup by uniform buckets (np.searchsorted's binary search costs
+    about 30 ns per value, 2 ms on a frame's statistics grid; this about a tenth of that).
+
+    Buckets half the narrowest segment wide hold at most one node each: a bucket's first segment,
+    stepped once past the node it may hold, is the value's segment."""
+
+    def __init__(self, nodes: np.ndarray):
+        self.nodes = nodes.astype(np.float32)
+        self.lo, self.hi = self.nodes[0], self.nodes[-1]
+        width = float(np.min(np.diff(nodes))) / 2.0
+        n = int(math.ceil((nodes[-1] - nodes[0]) / width)) + 1
+        self.per_unit = np.float32(1.0 / width)
+        edges = nodes[0] + np.arange(n) * width
+        self.first = np.clip(np.searchsorted(nodes, edges, side="right") - 1, 0, len(nodes) - 2).astype(np.intp)
+
+    def locate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(segment index, offset from its start) of each value of float32 ``x``; values past the
+        grid's ends sit at the end (offset clamped), so their end values hold, as np.interp's do."""
+        x = np.clip(x, self.lo, self.hi)
+        b = np.minimum(((x - self.lo) * self.per_unit).astype(np.intp), len(self.first) - 1)
+        i = self.first[b]
+        i = np.minimum(i + (x >= self.nodes[np.minimum(i + 1, len(self.nodes) - 1)]), len(self.nodes) - 2)
+        return i, x - self.nodes[i]
+
+
+class TableLookup:
+    """The tables read at p / p* = ``s`` (array) for textures of ``anisotropy`` 0 (the isotropic
+    2-D wave) to 1 (a 1-D wave), linear in between; None reads the 2-D wave alone.
+
+    One search of the tables' shared grid of s serves every column (a texture's statistics read
+    four to six of them per frame, each a full-grid ``np.interp`` before); values are the tables'
+    linear interpolation, held at their end values outside the grid, in float32."""
+
+    def __init__(self, s: np.ndarray, anisotropy: np.ndarray | None):
+        grid, self._seg = _segments()
+        self.s = np.asarray(s, dtype=np.float32)
+        self.a = None if anisotropy is None else np.clip(np.asarray(anisotropy, dtype=np.float32), 0.0, 1.0)
+        self._i, self._dx = grid.locate(self.s)
+
+    def column(self, kind: str, key: str) -> np.ndarray:
+        """One table's column at s (float32, shaped like s), no blend, no complete-contact rule."""
+        v0, slope = self._seg[kind, key]
+        return v0[self._i] + slope[self._i] * self._dx
+
+    def blend(self, key: str, v1: np.ndarray | None = None, v2: np.ndarray | None = None) -> np.ndarray:
+        """``key`` blended over the anisotropy (1 at s >= 1: complete contact); ``v1``/``v2``
+        replace the 1-D/2-D columns when given."""
+        v2 = self.column("2d", key) if v2 is None else v2
+        if self.a is not None:
+            v1 = self.column("1d", key) if v1 is None else v1
+            v2 = v2 + self.a * (v1 - v2)
+        return np.where(self.s >= 1.0, np.float32(1.0), v2)
+
+    def map_parameters(self) -> tuple[np.ndarray, np.ndarray]:
+        """(zeta, lam): see :func:`map_parameters`."""
+        tabs = map_tables()
+        s = self.s
+        v2 = self.column("2d", "zeta")
+        v1 = self.column("1d", "zeta") if self.a is not None else None
+        s0 = np.float32(tabs["2d"].s[0])
+        low = s < s0
+        if np.any(low):
+            v2 = np.where(low, np.float32(tabs["2d"].zeta[0]) * (np.maximum(s, 0) / s0) ** np.float32(2 / 3), v2)
+            if v1 is not None:
+                v1 = np.where(s < np.float32(tabs["1d"].s[0]), s, v1)
+        return self.blend("zeta", v1, v2), self.blend("lam")
 
 
 def map_parameters(s: np.ndarray, anisotropy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -198,43 +283,18 @@ def map_parameters(s: np.ndarray, anisotropy: np.ndarray) -> tuple[np.ndarray, n
     Below the table's first s the cut follows the 2-D Hertz scaling (zeta ~ s^(2/3)) and the
     1-D one (zeta = s); lam keeps its first value.
     """
-    tabs = map_tables()
-    s = np.asarray(s, dtype=np.float32)
-    a = np.clip(np.asarray(anisotropy, dtype=np.float32), 0.0, 1.0)
-    out = []
-    for key in ("zeta", "lam"):
-        v1 = np.interp(s, tabs["1d"].s, getattr(tabs["1d"], key)).astype(np.float32)
-        v2 = np.interp(s, tabs["2d"].s, getattr(tabs["2d"], key)).astype(np.float32)
-        if key == "zeta":
-            s0 = np.float32(tabs["2d"].s[0])
-            low = s < s0
-            if np.any(low):
-                v2 = np.where(low, np.float32(tabs["2d"].zeta[0]) * (np.maximum(s, 0) / s0) ** np.float32(2 / 3), v2)
-                v1 = np.where(s < np.float32(tabs["1d"].s[0]), s, v1)
-        out.append(v2 + a * (v1 - v2))
-    full = s >= 1.0
-    zeta = np.where(full, np.float32(1.0), out[0])
-    lam = np.where(full, np.float32(1.0), out[1])
-    return zeta, lam
-
-
-def _blend(key: str, s: np.ndarray, anisotropy: np.ndarray) -> np.ndarray:
-    tabs = map_tables()
-    s = np.asarray(s, dtype=np.float32)
-    a = np.clip(np.asarray(anisotropy, dtype=np.float32), 0.0, 1.0)
-    v1 = np.interp(s, tabs["1d"].s, getattr(tabs["1d"], key)).astype(np.float32)
-    v2 = np.interp(s, tabs["2d"].s, getattr(tabs["2d"], key)).astype(np.float32)
-    return np.where(s >= 1.0, np.float32(1.0), v2 + a * (v1 - v2))
+    return TableLookup(s, anisotropy).map_parameters()
 
 
 def contact_fraction(s: np.ndarray, anisotropy: np.ndarray) -> np.ndarray:
     """Share of a wave in contact at p / p* = s (tables; anisotropy 0 = 2-D wave, 1 = 1-D)."""
-    return _blend("contact_fraction", s, anisotropy)
+    return TableLookup(s, anisotropy).blend("contact_fraction")
 
 
-def kept_relief(s: np.ndarray, anisotropy: np.ndarray) -> np.ndarray:
-    """Kept fundamental of a wave at p / p* = s (tables; anisotropy 0 = 2-D wave, 1 = 1-D)."""
-    return _blend("kept", s, anisotropy)
+def kept_relief(s: np.ndarray, anisotropy: np.ndarray | None) -> np.ndarray:
+    """Kept fundamental of a wave at p / p* = s (tables; anisotropy 0 = 2-D wave, 1 = 1-D; None:
+    the 2-D wave)."""
+    return TableLookup(s, anisotropy).blend("kept")
 
 
 def fit_map_row(kind: str, s: float, n: int) -> dict[str, float]:
