@@ -19,7 +19,7 @@ Two ways in:
   dataset does (``gelsim generate --backend torch --device cuda``).
 
 Agreement with ``fast`` (stated tolerance, :data:`TOL_MEAN_DN` and :data:`TOL_MAX_DN`, tested in
-``tests/gelsim/test_optics_torch.py``): the noiseless float frames differ by operation order at
+``tests/gelsim/test_torch_backend.py``): the noiseless float frames differ by operation order at
 float32 rounding, and where the LED shadows are drawn, because the fast backend computes them on a
 half-resolution grid aligned with the imprint's box and this backend on one aligned with the frame.
 
