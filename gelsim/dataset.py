@@ -53,10 +53,25 @@ class GenerateConfig:
     format: str = "h264"
     units: int = 0          # sensor units drawn from the profile's [unit_variation]; 0 = the profile itself
     split: tuple[float, float, float] = SPLIT_WEIGHTS   # train:val:test weights, apportioned per fabric
+    backend: str | None = None   # render backend (gelsim.optics.BACKENDS); None = the fidelity level's
+    # Where and how many frames at a time the torch backend renders: how, not what (the same bytes for
+    # any batch, the same dataset within the backend's tolerance on any device), so not in options().
+    device: str | None = None    # None = the CPU
+    batch: int | None = None     # None = gelsim.optics.torch_backend.DEFAULT_BATCH
 
     def options(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
+        for k in PLACEMENT:
+            del d[k]
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+
+    def render_backend(self, fidelity) -> str:
+        """The backend that renders this dataset: ``backend``, or the fidelity level's."""
+        return self.backend or fidelity.render_backend
+
+
+#: GenerateConfig fields that say where the frames are rendered, not what they hold.
+PLACEMENT = ("device", "batch")
 
 
 # Sensor units a dataset may draw: each needs its own renderer in every worker (0.2-0.3 s and ~60 MB
@@ -290,7 +305,6 @@ def _worker_init(config: GenerateConfig, root: str) -> None:
     from .fabrics import load_catalog
     from .fidelity import get_fidelity
     from .motion import load_motion_ranges
-    from .optics import Renderer
     from .sensor import load_profile
 
     profile = load_profile(config.profile)
@@ -298,10 +312,29 @@ def _worker_init(config: GenerateConfig, root: str) -> None:
         profile = profile.with_resolution(*config.resolution)
     fidelity = get_fidelity(config.fidelity)
     _WORKER.update(config=config, root=Path(root), catalog=load_catalog(), profile=profile, fidelity=fidelity,
-                   ranges=load_motion_ranges(),
-                   renderer=Renderer(profile, fidelity.render_backend, supersample=fidelity.supersample,
-                                     seed=config.seed),
-                   units=unit_profiles(config, profile), unit_renderers={})
+                   ranges=load_motion_ranges(), units=unit_profiles(config, profile), unit_renderers={})
+    if config.render_backend(fidelity) == "torch":
+        import torch
+
+        torch.set_num_threads(1)  # one process per core, as for OpenCV (a GPU does the heavy work)
+    _WORKER["renderer"] = _renderer(profile)
+
+
+def _renderer(profile):
+    """This worker's renderer for ``profile``: a :class:`gelsim.optics.Renderer`, or for the torch backend
+    a :class:`gelsim.optics.torch_backend.BatchRenderer` over one (built once per worker and sensor unit)."""
+    from .optics import Renderer
+
+    w = _WORKER
+    config, fid = w["config"], w["fidelity"]
+    backend = config.render_backend(fid)
+    r = Renderer(profile, backend, supersample=fid.supersample, seed=config.seed,
+                 device=config.device if backend == "torch" else None)
+    if backend != "torch":
+        return r
+    from .optics.torch_backend import BatchRenderer
+
+    return BatchRenderer(r)
 
 
 def _unit(k: int):
@@ -311,12 +344,31 @@ def _unit(k: int):
     if k < 0:
         return w["profile"], w["renderer"]
     if k not in w["unit_renderers"]:
-        from .optics import Renderer
-
-        fid = w["fidelity"]
-        w["unit_renderers"][k] = Renderer(w["units"][k], fid.render_backend, supersample=fid.supersample,
-                                          seed=w["config"].seed)
+        w["unit_renderers"][k] = _renderer(w["units"][k])
     return w["units"][k], w["unit_renderers"][k]
+
+
+def _render_frames(renderer, writer, sequence: Callable, out) -> float:
+    """Render the frames of ``sequence(renderer)`` (a :func:`gelsim.sequence.render_sequence` call filling
+    ``out``) into ``writer``; returns the CPU seconds spent encoding. A BatchRenderer (torch backend)
+    renders them ``config.batch`` at a time while a writer thread encodes the previous batch."""
+    from .optics.torch_backend import DEFAULT_BATCH, BatchRenderer, FrameBatcher
+    from .sequence import stage_clock
+
+    encode_s = 0.0
+    if isinstance(renderer, BatchRenderer):
+        with FrameBatcher(renderer, _WORKER["config"].batch or DEFAULT_BATCH, writer.write) as frames:
+            for _ in sequence(frames):
+                pass
+            t = stage_clock()
+            frames.close()                                  # the last batch, after the sequence's end
+            out.timings_s["optics"] = out.timings_s.get("optics", 0.0) + stage_clock() - t
+        return frames.sink_seconds
+    for frame in sequence(renderer):
+        te = stage_clock()
+        writer.write(frame)
+        encode_s += stage_clock() - te
+    return encode_s
 
 
 def generate_sequence(spec: SequenceSpec) -> dict:
@@ -338,13 +390,9 @@ def generate_sequence(spec: SequenceSpec) -> dict:
                            ranges=w["ranges"])
     out = SequenceOutput({}, {})
     vpath = root / video_path(spec.video_stem(), config.format)
-    encode_s = 0.0
     with VideoWriter(vpath, fmt=config.format, fps=profile.image.fps_hz) as writer:
-        for frame in render_sequence(fabric, motion, profile, fidelity, seed=spec.seed,
-                                     renderer=renderer, sensor_seed=config.seed, out=out):
-            te = stage_clock()
-            writer.write(frame)
-            encode_s += stage_clock() - te
+        encode_s = _render_frames(renderer, writer, lambda r: render_sequence(
+            fabric, motion, profile, fidelity, seed=spec.seed, renderer=r, sensor_seed=config.seed, out=out), out)
     te = stage_clock()
     lpath = root / spec.labels_rel()
     atomic_write_npz(lpath, **out.labels)
@@ -413,6 +461,28 @@ def _load_records(root: Path, specs: list[SequenceSpec]) -> dict[str, dict]:
         if (root / r["video"]).exists() and (root / r["labels"]).exists():
             done[s.id] = r
     return done
+
+
+def check_render(config: GenerateConfig, fidelity) -> None:
+    """``config``'s render backend, device and batch, checked before anything is written: one line for a
+    backend that does not exist, a device this machine does not have, or a device or batch without the
+    torch backend."""
+    from .errors import check_choice
+    from .optics import BACKENDS
+
+    backend = config.render_backend(fidelity)
+    check_choice("--backend", backend, BACKENDS)
+    if backend != "torch":
+        if config.device is not None or config.batch is not None:
+            raise GelsimError(f"--device and --batch are for --backend torch, not {backend}; add --backend torch "
+                              "or drop them")
+        return
+    if config.batch is not None and (isinstance(config.batch, bool) or not isinstance(config.batch, int)
+                                     or config.batch < 1):
+        raise GelsimError(f"--batch {config.batch!r} is invalid; give a whole number of frames >= 1")
+    from .optics.torch_backend import resolve_device
+
+    resolve_device(config.device)
 
 
 def resolve_profile(config: GenerateConfig):
@@ -503,7 +573,7 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
         raise GelsimError(f"--format {config.format!r} is unknown; choose one of {', '.join(EXTENSIONS)}")
     catalog = load_catalog()
     profile = resolve_profile(config)
-    get_fidelity(config.fidelity)
+    check_render(config, get_fidelity(config.fidelity))
     if not 0 <= config.units <= MAX_UNITS:
         raise GelsimError(f"--units {config.units} is out of range; give 0 (the profile itself) to {MAX_UNITS}")
     unit_profiles(config, profile)  # a profile without [unit_variation] fails here, before anything is written

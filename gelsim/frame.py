@@ -62,11 +62,13 @@ def describe(obj: TouchedObject) -> dict:
 
 def render_frame(obj: TouchedObject, profile: str | Path | SensorProfile = "vitac",
                  fidelity: str | Fidelity = "balanced", *, force_n: float | None = None,
-                 depth_mm: float | None = None, backend: str | None = None, seed: int = 0) -> tuple[np.ndarray, dict]:
+                 depth_mm: float | None = None, backend: str | None = None, seed: int = 0,
+                 device: str | None = None) -> tuple[np.ndarray, dict]:
     """One camera frame of ``obj`` pressed into the gel (see :func:`press_object`).
 
     ``force_n`` (N) or ``depth_mm`` (mm past first touch), DEFAULT_FORCE_N when neither is given;
-    ``backend``: the renderer (default: the fidelity level's); ``seed``: the object's irregularities,
+    ``backend``: the renderer (default: the fidelity level's); ``device``: where the torch backend
+    renders (default the CPU; for no other backend); ``seed``: the object's irregularities,
     the background field, the marker jitter and the camera noise.
     Returns ``(rgb, info)``: ``uint8 (H, W, 3)`` RGB and a dict with the inputs, the imprint
     (indentation mm, force N, contact area mm^2, deepest point mm), the marker count and
@@ -96,13 +98,15 @@ def render_frame(obj: TouchedObject, profile: str | Path | SensorProfile = "vita
     lap("setup")
     info: dict = {"profile": prof.name, "shape_hw": list(prof.shape), "backend": backend, "fidelity": fid.name,
                   "seed": seed, "object": describe(obj)}
+    if device is not None:
+        info["device"] = device
     prot = field_heights(obj, prof, seed=seed)
     lap("object")
     imprint = press_object(obj, prof, fid, force_n=force_n, depth_mm=depth_mm, protrusion_mm=prot)
     lap("imprint")
     markers = displace(prof, fid, imprint, seed=seed) if prof.markers.enabled else None
     lap("markers")
-    renderer = Renderer(prof, backend, supersample=fid.supersample, seed=seed)
+    renderer = Renderer(prof, backend, supersample=fid.supersample, seed=seed, device=device)
     lap("renderer_setup")
     try:
         rgb = renderer.render(imprint.depth_mm, markers, seed=seed)

@@ -10,6 +10,8 @@ from ..errors import GelsimError
 
 
 def register(sub) -> None:
+    from ..optics import BACKENDS
+    from ..optics.torch_backend import DEFAULT_BATCH, TOL_MAX_DN
     from . import HelpFormatter
 
     p = sub.add_parser(
@@ -41,6 +43,16 @@ def register(sub) -> None:
     p.add_argument("--profile", metavar="NAME|PATH", help="sensor profile [default: vitac, 960x720]")
     p.add_argument("--resolution", metavar="WxH", help="render at this size, same field of view in mm [default: the profile's]")
     p.add_argument("--fidelity", choices=["fast", "balanced", "reference"], help="speed/accuracy level [default: balanced]")
+    p.add_argument("--backend", choices=BACKENDS,
+                   help="renderer: fast (numpy/OpenCV), pyrender (OpenGL), or torch (the fast backend's optics "
+                        f"in PyTorch, frames rendered in batches on --device; equal to fast within {TOL_MAX_DN:g} DN "
+                        "before noise, the same labels) [default: the fidelity level's]")
+    p.add_argument("--device", metavar="cpu|cuda",
+                   help="with --backend torch: where the frames are rendered (cuda: on the GPU, while the CPU "
+                        "simulates and encodes) [default: cpu]")
+    p.add_argument("--batch", type=int, metavar="FRAMES",
+                   help="with --backend torch: frames rendered at once; the output is the same bytes for any "
+                        f"batch [default: {DEFAULT_BATCH}]")
     p.add_argument("--seed", type=int, metavar="N", help="dataset seed [default: 0]")
     p.add_argument("--workers", type=int, metavar="N", default=None, help="worker processes [default: all cores]")
     p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
@@ -92,7 +104,7 @@ def config_from_args(args: argparse.Namespace):
              "precontact": lambda text: parse_range(text, "--precontact", lo=0),
              "resolution": parse_resolution}
     for name in ("fabrics", "sequences_per_fabric", "actions", "split", "frames", "precontact", "profile",
-                 "resolution", "fidelity", "seed", "format"):
+                 "resolution", "fidelity", "seed", "format", "backend", "device", "batch"):
         value = getattr(args, name)
         if value is not None:
             values[name] = parse[name](value) if name in parse else value
@@ -168,12 +180,13 @@ def _dry_run(cfg, args) -> int:
     catalog = load_catalog()
     profile = dataset.resolve_profile(cfg)
     dataset.unit_profiles(cfg, profile)  # a profile without [unit_variation] fails here
+    from ..fidelity import get_fidelity
+
+    dataset.check_render(cfg, get_fidelity(cfg.fidelity))  # and a device this machine lacks
     specs = dataset.plan(cfg, len(catalog))
     frames = sum(s.num_frames for s in specs)
     w, h = profile.image.width_px, profile.image.height_px
     nbytes = dataset.estimate_bytes(specs, cfg.format, w, h)
-    from ..fidelity import get_fidelity
-
     fid = get_fidelity(cfg.fidelity)
     workers = args.workers or os.cpu_count() or 1
     est_s = frames * fid.est_ms_per_frame_vga * (w * h) / (640 * 480) / 1000 / workers

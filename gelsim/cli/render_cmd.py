@@ -5,6 +5,7 @@ import time
 
 from . import HelpFormatter, print_result
 from ..frame import DEFAULT_FORCE_N
+from ..optics import BACKENDS
 
 
 def register(subparsers) -> None:
@@ -23,8 +24,10 @@ def register(subparsers) -> None:
                      help=f"normal force, N (default {DEFAULT_FORCE_N} when --depth-mm is not given)")
     how.add_argument("--depth-mm", type=float, default=None, help="approach past first touch, mm")
     p.add_argument("--profile", default="vitac", metavar="NAME|PATH", help="sensor profile name or .toml path")
-    p.add_argument("--backend", default=None, choices=["fast", "pyrender"],
+    p.add_argument("--backend", default=None, choices=BACKENDS,
                    help="renderer (default: the fidelity level's)")
+    p.add_argument("--device", default=None, metavar="cpu|cuda",
+                   help="with --backend torch: where it renders (default: cpu)")
     p.add_argument("--fidelity", default="balanced", choices=["fast", "balanced", "reference"],
                    help="fidelity level (imprint model, supersampling, default backend)")
     p.add_argument("--seed", type=int, default=0,
@@ -53,7 +56,8 @@ def run(args) -> int:
     t0 = time.perf_counter()
     out = check_out_file(args.out)     # before the work, not after it
     rgb, info = render_frame(make_object(args.fabric, args.indenter, args.diameter_mm), args.profile, args.fidelity,
-                             force_n=args.force_n, depth_mm=args.depth_mm, backend=args.backend, seed=args.seed)
+                             force_n=args.force_n, depth_mm=args.depth_mm, backend=args.backend, seed=args.seed,
+                             device=args.device)
     t = time.perf_counter()
     write_png(out, rgb)
     info["stages_ms"]["write_png"] = round((time.perf_counter() - t) * 1e3, 2)

@@ -13,7 +13,10 @@ composited identically here, so the backends differ in shading alone:
 * ``pyrender``: the deformed gel as a mesh lit by spot lights with shadows,
   OpenGL through OSMesa or EGL (:mod:`gelsim.optics.pyrender_backend`), the
   yardstick for ``fast``. It always shades from the profile's lights (a
-  calibrated table has no meaning for a mesh renderer).
+  calibrated table has no meaning for a mesh renderer);
+* ``torch``: ``fast``'s shading in PyTorch on ``device`` (``cpu`` or ``cuda``), equal to
+  ``fast`` within a stated tolerance (:mod:`gelsim.optics.torch_backend`, whose
+  ``BatchRenderer`` renders whole frames, markers and noise included, ``B`` at a time).
 
 Each backend is a :class:`~gelsim.optics.shader.Shader` (its contract: ``delta``, ``parts``,
 ``compose``, ``close``), found by name and checked when the Renderer loads it.
@@ -38,17 +41,22 @@ from .composite import NoiseBank, blur_radius_px, darken_markers, gaussian_blur,
 from .field import background_float, light_maps
 from .shader import Shader, shader_class, work_array
 
-BACKENDS = ("fast", "pyrender")
+BACKENDS = ("fast", "pyrender", "torch")
 
 __all__ = ["Renderer", "render", "available_backends", "BACKENDS", "Shader"]
 
 
 def available_backends() -> list[str]:
-    """Backends that can render on this machine (``pyrender`` only if a headless GL context can be made)."""
+    """Backends that can render on this machine (``pyrender`` only if a headless GL context can be made,
+    ``torch`` if PyTorch is installed)."""
+    import importlib.util
+
     out = ["fast"]
     from .pyrender_backend import gl_available
     if gl_available():
         out.append("pyrender")
+    if importlib.util.find_spec("torch") is not None:
+        out.append("torch")
     return out
 
 
@@ -78,14 +86,19 @@ def check_depth(depth_mm, shape: tuple[int, int]) -> np.ndarray | None:
 class Renderer:
     """Renders frames of one sensor.
 
-    ``profile``: a :class:`~gelsim.sensor.SensorProfile`; ``backend``: ``"fast"``
-    or ``"pyrender"``; ``supersample``: shade and draw at this many times the
+    ``profile``: a :class:`~gelsim.sensor.SensorProfile`; ``backend``: ``"fast"``,
+    ``"pyrender"`` or ``"torch"``; ``supersample``: shade and draw at this many times the
     resolution (1-4), then area-average down; ``seed``: fixes the background's
-    random illumination field and the noise bank.
+    random illumination field and the noise bank; ``device``: where the ``torch``
+    backend computes (``"cpu"``, ``"cuda"``; default the CPU), for no other backend.
     """
 
-    def __init__(self, profile, backend: str = "fast", *, supersample: int = 1, seed: int = 0):
+    def __init__(self, profile, backend: str = "fast", *, supersample: int = 1, seed: int = 0,
+                 device: str | None = None):
         check_choice("render backend", backend, BACKENDS)
+        if device is not None and backend != "torch":
+            raise GelsimError(f"--device {device} is for the torch backend, not {backend!r}; add --backend torch "
+                              "or drop --device")
         if isinstance(supersample, bool) or not isinstance(supersample, (int, np.integer)) \
                 or not 1 <= supersample <= 4:
             raise GelsimError(f"supersample {supersample!r} is invalid; give an integer from 1 to 4")
@@ -101,7 +114,8 @@ class Renderer:
         bg = gaussian_blur(background_float(self._fine, maps, self.seed), self._blur_fine)
         self._bg_fine = bg
         self._bg = bg if s == 1 else cv2.resize(bg, (w, h), interpolation=cv2.INTER_AREA)
-        self._shader: Shader = shader_class(backend, profile)(self._fine, maps)
+        cls = shader_class(backend, profile)
+        self._shader: Shader = cls(self._fine, maps, device=device) if backend == "torch" else cls(self._fine, maps)
         self._bufs: dict[str, np.ndarray] = {}
         n = profile.noise
         self._noise = NoiseBank(profile.shape, n.read_sigma_dn, n.shot_gain, self.seed)

@@ -142,11 +142,17 @@ class NoiseBank:
     def active(self) -> bool:
         return self.read_var > 0 or self.shot_gain > 0
 
-    def pick(self, seed: int | np.random.Generator) -> np.ndarray:
-        """The standard-normal field for ``seed``: float32 ``(H, W, 3)`` view."""
+    def offsets(self, seed: int | np.random.Generator) -> tuple[int, int, int]:
+        """The draw for ``seed``: (bank frame, row offset, column offset) of its noise field (a Generator
+        advances by this draw, as a frame of a sequence does)."""
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         k = int(rng.integers(len(self.bank)))
         oy, ox = (int(v) for v in rng.integers(self.pad + 1, size=2))
+        return k, oy, ox
+
+    def pick(self, seed: int | np.random.Generator) -> np.ndarray:
+        """The standard-normal field for ``seed``: float32 ``(H, W, 3)`` view."""
+        k, oy, ox = self.offsets(seed)
         h, w = self.shape
         return self.bank[k][oy:oy + h, ox:ox + w]
 

@@ -38,6 +38,8 @@ BACKENDS: dict[str, tuple[str, str]] = {
     "fast": ("gelsim.optics.fast", "FastShader"),
     "lut": ("gelsim.optics.lut", "LutShader"),
     "pyrender": ("gelsim.optics.pyrender_backend", "PyrenderShader"),
+    # the fast backend's shading (table or Phong, shadows) in PyTorch on a device, also batched
+    "torch": ("gelsim.optics.torch_backend", "TorchShader"),
 }
 
 
@@ -125,10 +127,11 @@ def check_shader(cls, backend: str) -> type[Shader]:
 
 
 def shader_class(backend: str, profile) -> type[Shader]:
-    """The checked Shader class that renders ``backend`` ("fast" or "pyrender") for ``profile``: "fast"
-    with a calibrated table (``[shading] model = "lut"``) is the "lut" backend."""
+    """The checked Shader class that renders ``backend`` ("fast", "pyrender" or "torch") for ``profile``:
+    "fast" with a calibrated table (``[shading] model = "lut"``) is the "lut" backend ("torch" reads
+    either shading model itself)."""
     key = "lut" if backend == "fast" and profile.shading.model == "lut" else backend
     if key not in BACKENDS:
-        raise GelsimError(f"unknown render backend {backend!r}; choose one of fast, pyrender")
+        raise GelsimError(f"unknown render backend {backend!r}; choose one of fast, pyrender, torch")
     module, name = BACKENDS[key]
     return check_shader(getattr(importlib.import_module(module), name), key)

@@ -169,6 +169,9 @@ def test_verify_stats_bad_options_one_line_exit_2(tiny, capsys, args, msg):
     (["--precontact", "30-40"], "precontact"),
     (["--units", "2", "--profile", "gelsight-r15"], "unit_variation"),
     (["--units", "-1"], "--units"),
+    (["--device", "cpu"], "--backend torch"),
+    (["--backend", "torch", "--batch", "0"], "--batch"),
+    (["--backend", "torch", "--device", "tpu"], "--device"),
 ])
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, args, msg):
     out = tmp_path / "never"
@@ -219,3 +222,48 @@ def test_a_dataset_made_before_an_option_existed_resumes(tiny, tmp_path, capsys)
     assert _gen(out, "--split", "1:1:1") == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("gelsim: error: --out") and "(split)" in err[-1]
+
+
+def _frames(root: Path, seq: dict) -> np.ndarray:
+    from gelsim.video import read_video
+
+    return np.asarray(read_video(root / seq["video"]), np.int16)
+
+
+def test_torch_backend_same_labels_frames_within_tolerance_same_bytes_for_any_batch(tmp_path, capsys):
+    """--backend torch writes the fast backend's dataset: the labels byte for byte, the frames within the
+    backend's stated tolerance (PNG frames, so that the codec does not blur the comparison), and the same
+    bytes for any --batch; the manifest records the backend, not the device or the batch."""
+    from gelsim.optics.torch_backend import TOL_MAX_UINT8_DN, TOL_MEAN_DN
+
+    pytest.importorskip("torch")
+    args = ["--fabrics", "2", "--sequences-per-fabric", "2", "--format", "png"]
+    assert _gen(tmp_path / "fast", *args) == 0
+    assert _gen(tmp_path / "b1", *args, "--backend", "torch", "--device", "cpu", "--batch", "1") == 0
+    assert _gen(tmp_path / "b4", *args, "--backend", "torch", "--batch", "4", workers=2) == 0
+    fast, b1, b4 = (load_manifest(tmp_path / n) for n in ("fast", "b1", "b4"))
+    assert b1["sequences"] == b4["sequences"]                      # every checksum: the same bytes
+    assert b1["options"] == {**fast["options"], "backend": "torch"} and "device" not in b1["options"]
+    changed = 0
+    for f, t in zip(fast["sequences"], b1["sequences"]):
+        assert f["sha256"]["labels"] == t["sha256"]["labels"]
+        a, b = _frames(tmp_path / "fast", f), _frames(tmp_path / "b1", t)
+        err = np.abs(a - b)
+        assert err.max() <= TOL_MAX_UINT8_DN and err.mean() < TOL_MEAN_DN, (f["id"], err.max(), err.mean())
+        changed += int(np.abs(a - a[:1]).max() > 10)                 # the sequence shows a press
+    assert changed >= 3
+    # a torch dataset is not resumed by the fast backend, and says why
+    capsys.readouterr()
+    assert _gen(tmp_path / "b1", *args) == 2
+    assert "(backend)" in capsys.readouterr().err
+
+
+def test_device_cuda_without_cuda_is_one_line_exit_2(tmp_path, capsys):
+    torch = pytest.importorskip("torch")
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    out = tmp_path / "never"
+    assert main(["generate", "--out", str(out), *TINY, "--backend", "torch", "--device", "cuda"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no CUDA device on this machine" in err and "--device cpu" in err
+    assert not out.exists()
