@@ -192,6 +192,7 @@ def plan(config: GenerateConfig, catalog_size: int) -> list[SequenceSpec]:
         raise GelsimError(f"--fabrics {config.fabrics} is out of range; the catalog has fabrics 1-{catalog_size}")
     if config.sequences_per_fabric < 1:
         raise GelsimError("--sequences-per-fabric must be at least 1")
+    check_frames(config)
     specs = []
     n = config.sequences_per_fabric
     schedule = interleave(config.fabrics * n, config.actions)
@@ -217,14 +218,32 @@ def plan(config: GenerateConfig, catalog_size: int) -> list[SequenceSpec]:
             pre = None
             if config.precontact is not None:
                 pre = int(rng.integers(config.precontact[0], config.precontact[1] + 1))
-                if pre >= frames:
-                    raise GelsimError(f"--precontact {config.precontact[0]}-{config.precontact[1]} leaves no contact "
-                                      f"frames in a {frames}-frame sequence; lower it below the frame count")
             unit = len(specs) % config.units if config.units else -1  # units in turn over the whole plan
             specs.append(SequenceSpec(id=schema.sequence_id(fid, i), fabric_id=fid, index=i, action=actions[i],
                                       seed=s, num_frames=frames, precontact_frames=pre, split=str(split_of[i]),
                                       unit=unit))
     return specs
+
+
+def check_frames(config: GenerateConfig) -> None:
+    """One line, before anything is written, when a sequence of ``config.frames`` could keep fewer than
+    MIN_CONTACT_FRAMES in contact after its pre-contact frames (``config.precontact``, or the default
+    mixture of assets/motions.toml, whose late starts take up to 12)."""
+    from .motion import MIN_CONTACT_FRAMES, load_motion_ranges
+
+    lo, hi = config.frames
+    if config.precontact is not None:
+        most = config.precontact[1]
+        what = f"--precontact {config.precontact[0]}-{most}"
+        fix = f"keep --precontact's maximum at most {lo - MIN_CONTACT_FRAMES}"
+    else:
+        t = load_motion_ranges().timing
+        most = max(t.precontact_frames[1], t.late_start_frames[1])
+        what = f"the default pre-contact frames (up to {most}, assets/motions.toml)"
+        fix = "give --precontact (e.g. 0-1)"
+    if lo - most < MIN_CONTACT_FRAMES:
+        raise GelsimError(f"--frames {lo}-{hi} with {what} can leave fewer than {MIN_CONTACT_FRAMES} frames in contact; "
+                          f"raise the frame minimum to {most + MIN_CONTACT_FRAMES} or {fix}")
 
 
 def unit_seed(seed: int, unit: int) -> int:

@@ -52,6 +52,10 @@ class _Ranges:
             _check_range(f"{where}.{name}", getattr(self, name), lo, hi)
 
 
+# A sequence keeps at least this many frames in contact (the press needs a ramp and a hold).
+MIN_CONTACT_FRAMES = 3
+
+
 @dataclass(frozen=True)
 class ActionWeights:
     press: float = param(7.0, lo=0.0, doc="relative frequency of press")
@@ -253,8 +257,8 @@ def sample_motion(action: str, seed: int | np.random.Generator, *, frames: tuple
         raise GelsimError(f"precontact {pre}: need 0 <= low <= high")
     num_frames = int(rng.integers(frames[0], frames[1] + 1))
     precontact_frames = int(rng.integers(pre[0], pre[1] + 1))
-    if num_frames - precontact_frames < 3:
-        raise GelsimError(f"{num_frames} frames with {precontact_frames} before contact leaves fewer than 3 "
+    if num_frames - precontact_frames < MIN_CONTACT_FRAMES:
+        raise GelsimError(f"{num_frames} frames with {precontact_frames} before contact leaves fewer than {MIN_CONTACT_FRAMES} "
                           "in contact; raise frames or lower precontact")
     t, a = ranges.timing, ranges.approach
     r = a.start_offset_mm * math.sqrt(rng.uniform())  # uniform over the disk

@@ -92,6 +92,7 @@ def register(sub) -> None:
 
 
 def config_from_args(args: argparse.Namespace):
+    from .. import dataset
     from ..dataset import PRESETS, GenerateConfig, parse_range, parse_ratio, parse_resolution
 
     values: dict = {}
@@ -113,9 +114,7 @@ def config_from_args(args: argparse.Namespace):
             raise GelsimError(f"--units {args.units} is out of range; give 0 (the profile itself) to 1000")
         values["units"] = args.units
     cfg = GenerateConfig(**values)
-    if cfg.precontact is not None and cfg.precontact[1] >= cfg.frames[0]:
-        raise GelsimError(f"--precontact {cfg.precontact[0]}-{cfg.precontact[1]} leaves no contact frames in the "
-                          f"shortest ({cfg.frames[0]}-frame) sequence; keep its maximum below the frame minimum")
+    dataset.check_frames(cfg)
     return cfg
 
 

@@ -101,3 +101,25 @@ def test_split_weights_apportion_per_fabric():
     assert Counter(s.split for s in d) == {"train": 21, "val": 6, "test": 3}
     with pytest.raises(GelsimError, match="--split '7:2' is malformed; give three non-negative train:val:test"):
         parse_ratio("7:2", "--split", "train:val:test", "7:2:1")
+
+
+def test_frames_too_short_for_the_precontact_mixture_fail_before_anything_is_written(tmp_path):
+    """--frames whose shortest sequence could keep fewer than MIN_CONTACT_FRAMES in contact after the
+    pre-contact frames (given, or the default mixture's late starts) is refused up front, not mid-run."""
+    import subprocess
+    import sys
+
+    from gelsim.dataset import GenerateConfig, check_frames
+    from gelsim.errors import GelsimError
+
+    with pytest.raises(GelsimError, match="fewer than 3 frames in contact"):
+        check_frames(GenerateConfig(frames=(8, 10)))              # late starts take up to 12
+    with pytest.raises(GelsimError, match="at most 5"):
+        check_frames(GenerateConfig(frames=(8, 10), precontact=(2, 6)))
+    check_frames(GenerateConfig(frames=(8, 10), precontact=(0, 5)))
+    check_frames(GenerateConfig())
+    out = tmp_path / "ds"
+    r = subprocess.run([sys.executable, "-m", "gelsim", "generate", "--frames", "8-10", "--out", str(out),
+                        "--fabrics", "1"], capture_output=True, text=True)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+    assert not out.exists()
