@@ -104,3 +104,28 @@ def test_physics_surface_on_its_grid(fabric, vitac):
     assert ox / PHYSICS_MM_PER_PX == pytest.approx(round(ox / PHYSICS_MM_PER_PX), abs=1e-6)
     assert oy / PHYSICS_MM_PER_PX == pytest.approx(round(oy / PHYSICS_MM_PER_PX), abs=1e-6)
     assert s.heights_mm.min() >= 0.0 and s.friction == pytest.approx(fabric.friction)
+
+
+@pytest.mark.parametrize("yaws", [(0.0, 0.001), (0.0, 35.0), (-20.0, 90.0)])
+def test_travel_patch_from_poses_covers_every_frame_and_is_smaller(fabric, vitac, yaws):
+    """Built from the frames' poses, the patch holds every pixel of every frame (two cells to spare for
+    the bilinear taps), and for a press it is about half the circle-based patch's area."""
+    m = sample_motion("press", 5)
+    t = np.linspace(0.0, 1.0, 7)
+    pos = np.stack([0.3 * t - 0.1, -0.2 * t + 0.05, 0.0 * t], axis=1)
+    yaw = yaws[0] + (yaws[1] - yaws[0]) * t
+    mm = vitac.image.mm_per_px
+    p = travel_patch(FabricObject(fabric), m, vitac, mm, seed=3, poses=(pos, yaw))
+    h_px, w_px = vitac.shape
+    hp, wp = p.heights_mm.shape
+    for (x, y, _), a in zip(pos, np.radians(yaw)):
+        for u in (0, w_px - 1):
+            for v in (0, h_px - 1):
+                su, sv = (u - (w_px - 1) / 2) * mm, (v - (h_px - 1) / 2) * mm
+                wx = x + math.cos(a) * su - math.sin(a) * sv
+                wy = y + math.sin(a) * su + math.cos(a) * sv
+                j, i = (wx - p.origin_mm[0]) / mm, (wy - p.origin_mm[1]) / mm
+                assert 1.0 <= j <= wp - 2.0 and 1.0 <= i <= hp - 2.0
+    if yaws[1] - yaws[0] < 1.0:
+        circle = travel_patch(FabricObject(fabric), m, vitac, mm, seed=3)
+        assert p.heights_mm.size < 0.6 * circle.heights_mm.size
