@@ -29,13 +29,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 from scipy import sparse
-from scipy.sparse.linalg import spsolve
+from scipy.sparse.linalg import LinearOperator, cg, splu, spsolve
 
 from .atomic import atomic_write_npz, atomic_write_text, write_png
 from .errors import GelsimError
 from .optics.lut import coarse_features, normal_xy, shadow_factors
 from .params import dump_toml, to_dict
-from .realism import DISK_RADII, DataPack, ball_depth, check_geometry, disk_mask
+from .realism import DISK_RADII, DataPack, ball_cap, ball_depth, ball_indentation_mm, check_geometry, disk_mask
 
 # Fitting constants (why each has its value):
 N_BINS = 41             # normal bins over -1..1: 0.05 per bin, finer than the ball's normal changes per px
@@ -158,11 +158,9 @@ def _frame_samples(profile, pack: DataPack, i: int, bg: np.ndarray, ball_mm: flo
     keep = (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= rr * rr
     yy, xx = yy[keep], xx[keep]
     inside = (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= r * r
-    fw, fh = profile.field_mm
+    xn, yn = field_position(xx, yy, pack.shape)
     out = {
-        "nx": nx[yy, xx], "ny": ny[yy, xx],
-        "xn": ((xx - (w - 1) / 2.0) * mm / (fw / 2.0)).astype(np.float32),
-        "yn": ((yy - (h - 1) / 2.0) * mm / (fh / 2.0)).astype(np.float32),
+        "nx": nx[yy, xx], "ny": ny[yy, xx], "xn": xn, "yn": yn,
         "target": pack.imgs[i][yy, xx].astype(np.float32) - bg[yy, xx],
         "weight": np.where(inside, 1.0, OUTSIDE_WEIGHT).astype(np.float32),
     }
@@ -181,6 +179,14 @@ def _frame_samples(profile, pack: DataPack, i: int, bg: np.ndarray, ball_mm: flo
     out["extra"] = np.concatenate(extra).astype(np.float32)
     del roi
     return out
+
+
+def field_position(xx: np.ndarray, yy: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel columns and rows ``xx, yy`` (any shape) of an image of ``shape`` (H, W) as the table's
+    positions ``xn, yn``: float32, -1..1 from edge to edge of the field (pixel centres, as the renderer)."""
+    h, w = shape
+    return (((xx - (w - 1) / 2.0) / (w / 2.0)).astype(np.float32),
+            ((yy - (h - 1) / 2.0) / (h / 2.0)).astype(np.float32))
 
 
 def halo_spec() -> dict:
@@ -240,37 +246,58 @@ def _regulariser(nb: int, ncol: int) -> sparse.csr_matrix:
     return sparse.csr_matrix((vals, (rows, cols)), shape=(r, ncol))
 
 
-def fit_table(samples: list[dict], nb: int = N_BINS, smooth: float = SMOOTH_WEIGHT) -> dict:
-    """Weighted least-squares table, shadow colours, depth and halo terms from samples; returns the
-    LUT file's arrays (without the shadows' and the halo's geometry, which the caller adds)."""
+def normal_equations(samples: list[dict], nb: int = N_BINS) -> dict:
+    """The weighted least-squares problem of the table model for ``samples``: ``ata`` (sparse, ncol x
+    ncol), ``aty`` (ncol, 3), the sample count ``n`` and ``n_shadow``. Problems of disjoint samples
+    add (and subtract) term by term, which :func:`register_presses` uses to leave one frame out."""
     a, y = _design(samples, nb)
     if "weight" in samples[0]:
         # each sample's squared error counts weight times
         w = np.sqrt(np.concatenate([s["weight"] for s in samples]).astype(np.float64))
         a = sparse.diags(w) @ a
         y = y * w[:, None]
-    n, ncol = a.shape
+    return {"ata": (a.T @ a).tocsc(), "aty": a.T @ y, "n": a.shape[0], "n_shadow": samples[0].get("n_shadow", 0)}
+
+
+def _system(eq: dict, nb: int, smooth: float) -> sparse.csc_matrix:
+    """The regularised matrix of :func:`normal_equations` ``eq`` (its right-hand side is ``eq["aty"]``)."""
+    ncol = eq["ata"].shape[0]
     reg = _regulariser(nb, ncol)
-    lam = smooth * n / (nb * nb)
-    m = (a.T @ a + lam * (reg.T @ reg) + RIDGE_WEIGHT * lam * sparse.identity(ncol)).tocsc()
+    lam = smooth * eq["n"] / (nb * nb)
+    m = (eq["ata"] + lam * (reg.T @ reg) + RIDGE_WEIGHT * lam * sparse.identity(ncol)).tocsc()
     # T(0, 0) = 0: a flat gel shows the background, so pin the centre bin's three terms
     c = ((nb // 2) * nb + nb // 2) * 3
     pin = sparse.lil_matrix((ncol, ncol))
     for k in range(3):
         pin[c + k, c + k] = 1e6 * lam
-    m = (m + pin.tocsc()).tocsc()
-    rhs = a.T @ y
-    sol = spsolve(m, rhs)
-    sol = np.asarray(sol).reshape(ncol, 3)
+    return (m + pin.tocsc()).tocsc()
+
+
+def _unpack(sol: np.ndarray, nb: int, n_shadow: int) -> dict:
+    """The LUT file's arrays from the solution ``(ncol, 3)`` of the table's system."""
+    ncol = sol.shape[0]
     table = sol[:3 * nb * nb].reshape(nb, nb, 3, 3)       # (row=ny, col=nx, basis, colour)
     out = {"table": np.ascontiguousarray(table.reshape(nb, nb, 9), dtype=np.float32)}
     if ncol > 3 * nb * nb:
         ex = sol[3 * nb * nb:].astype(np.float32)
-        k = samples[0]["n_shadow"]
+        k = n_shadow
         if k:
             out["shadow_rgb"] = ex[:k]
         out["depth_rgb"], out["halo_rgb"] = ex[k:k + 3], ex[k + 3:k + 6]
     return out
+
+
+def solve_table(eq: dict, nb: int = N_BINS, smooth: float = SMOOTH_WEIGHT) -> dict:
+    """The table, shadow colours, depth and halo terms solving :func:`normal_equations` ``eq`` with the
+    smoothness penalty; the LUT file's arrays (without the shadows' and the halo's geometry)."""
+    sol = spsolve(_system(eq, nb, smooth), eq["aty"])
+    return _unpack(np.asarray(sol).reshape(eq["ata"].shape[0], 3), nb, eq["n_shadow"])
+
+
+def fit_table(samples: list[dict], nb: int = N_BINS, smooth: float = SMOOTH_WEIGHT) -> dict:
+    """Weighted least-squares table, shadow colours, depth and halo terms from samples; returns the
+    LUT file's arrays (without the shadows' and the halo's geometry, which the caller adds)."""
+    return solve_table(normal_equations(samples, nb), nb, smooth)
 
 
 def predict(table: dict, s: dict, nb: int = N_BINS) -> np.ndarray:
@@ -280,6 +307,145 @@ def predict(table: dict, s: dict, nb: int = N_BINS) -> np.ndarray:
     coef = np.concatenate([table["table"].reshape(nb * nb * 3, 3), table.get("shadow_rgb", none),
                            table.get("depth_rgb", none), table.get("halo_rgb", none)])
     return a @ coef.astype(np.float64)
+
+
+# --------------------------------------------------------------------------------------
+# Registration: where each ball was pressed
+# --------------------------------------------------------------------------------------
+# A pack's contact centres are annotated by hand (taxim's tool moves a circle in 2 px steps). Where
+# the contact's rim shows (the R1.5) they are right to a few pixels; where it does not (the GelSight
+# Mini, whose image fades towards the rim and turns through its whole colour wheel within 10-25 px of
+# the ball's lowest point) they are off by 5-8 px RMS, up to 22 px (docs/realism.md). Inside the
+# contact the gel takes the ball's shape, so a press's colours there follow from its centre alone
+# (the ball's normals and depth; no gel model): each centre is moved to where its press agrees best
+# with a shading table fitted on the other presses. Constants:
+REGISTER_REACH = 0.75   # search within 0.75 contact radii of the annotated centre (the Mini's worst: 0.47)
+REGISTER_GRID = 9       # coarse search: 9 x 9 centres over the reach (0.19 radii apart, 8.6 px on the Mini:
+                        # inside the 10-25 px over which its colours turn), then a pattern search
+REGISTER_TOL_PX = 0.25  # the pattern search stops at this step, px
+REGISTER_SAMPLES = 20   # sample every n-th pixel each way, n = median contact radius / 20 (at least 1): every
+                        # 2nd on the Mini (radii 34-57 px), 3rd on the R1.5 (59-67); centres found at
+                        # twice as many samples each way differ by under 0.3 / 0.8 px. On a synthetic pack
+                        # with 11-15 px contacts every 2nd pixel missed the true centres by 2.6 px RMS,
+                        # every pixel by 1.0
+REGISTER_SMOOTH = 0.3   # the reference table's smoothness: sharp enough for the Mini's colour wheel (the
+                        # fit picks 0.1 there), smooth enough for the R1.5 (1.0-3.0); offsets found with
+                        # 0.1 / 0.3 / 1.0 differ by under a pixel (docs/realism.md)
+REGISTER_CG_RTOL = 1e-6 # relative residual of each left-out table's solve (its colours to well under 0.1 DN)
+REGISTER_ROUNDS = 4     # rounds over the fitted presses (each against the others' table); stops earlier
+                        # once no centre moves by more than a pixel
+
+
+def _cap_samples(pack: DataPack, i: int, center, bg: np.ndarray, mm_per_px: float, ball_mm: float,
+                 stride: int) -> dict:
+    """Frame ``i``'s samples inside its contact (:func:`gelsim.realism.ball_cap`) for a ball centred
+    on ``center`` (x, y) px: the ball's exact normals (nx, ny), positions (xn, yn), the depth term's
+    basis ``extra`` (3, n) (the depth is the annotated press's, ``ball_indentation_mm`` of its radius,
+    less the sphere's rise) and the target colour change (n, 3) over ``bg``; every ``stride``-th pixel."""
+    yy, xx, gx, gy, sag = ball_cap(center, pack.radii_px[i], pack.shape, mm_per_px, ball_mm, stride)
+    inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
+    xn, yn = field_position(xx, yy, pack.shape)
+    d = (ball_indentation_mm(pack.radii_px[i] * mm_per_px, ball_mm) - sag).astype(np.float32)
+    return {"nx": (-gx * inv).astype(np.float32), "ny": (-gy * inv).astype(np.float32), "xn": xn, "yn": yn,
+            "extra": np.stack([d, d * xn, d * yn]), "n_shadow": 0,
+            "target": pack.imgs[i][yy, xx].astype(np.float32) - bg[yy, xx]}
+
+
+def _place(pack: DataPack, i: int, table: dict, bg: np.ndarray, mm_per_px: float, ball_mm: float,
+           stride: int) -> np.ndarray:
+    """The centre (x, y) px within REGISTER_REACH contact radii of frame ``i``'s annotated one where its
+    press agrees best (least squared error inside the contact) with ``table``: a coarse grid, then a
+    pattern search (one step each way, halved when no neighbour is better)."""
+    c0 = pack.centers_px[i]
+    reach = REGISTER_REACH * pack.radii_px[i]
+    h, w = pack.shape
+
+    def cost(c):
+        if (c[0] - c0[0]) ** 2 + (c[1] - c0[1]) ** 2 > reach * reach:
+            return math.inf
+        if not (0 <= c[0] <= w - 1 and 0 <= c[1] <= h - 1):
+            return math.inf
+        s = _cap_samples(pack, i, c, bg, mm_per_px, ball_mm, stride)
+        if s["nx"].size == 0:
+            return math.inf
+        return float(((predict(table, s) - s["target"]) ** 2).mean())
+
+    offs = np.linspace(-reach, reach, REGISTER_GRID)
+    best_e, best = min((cost(c0 + (dx, dy)), tuple(c0 + (dx, dy))) for dy in offs for dx in offs)
+    best = np.asarray(best)
+    step = offs[1] - offs[0]
+    while step > REGISTER_TOL_PX:
+        moves = [(cost(best + (dx, dy)), (dx, dy)) for dy in (-step, 0.0, step) for dx in (-step, 0.0, step)
+                 if dx or dy]
+        e, mv = min(moves)
+        if e < best_e:
+            best_e, best = e, best + mv
+        else:
+            step /= 2.0
+    return best
+
+
+def _leave_out(m: sparse.csc_matrix, lu, aty: np.ndarray, eq: dict) -> dict:
+    """The table of all frames but one: the system ``m`` (all frames, factorised as ``lu``) less that
+    frame's normal equations ``eq``, solved by conjugate gradients preconditioned with ``lu`` (a few
+    iterations: one frame changes the system little). The smoothness stays that of all frames."""
+    mi = (m - eq["ata"]).tocsr()
+    rhs = aty - eq["aty"]
+    pre = LinearOperator(m.shape, matvec=lu.solve, dtype=np.float64)
+    sol = np.empty_like(rhs)
+    for c in range(rhs.shape[1]):
+        sol[:, c], _ = cg(mi, rhs[:, c], x0=lu.solve(rhs[:, c]), M=pre, rtol=REGISTER_CG_RTOL, maxiter=200)
+    return _unpack(sol, N_BINS, 0)
+
+
+def register_presses(pack: DataPack, frames: str, mm_per_px: float, ball_diameter_mm: float,
+                     log=None) -> tuple[DataPack, dict]:
+    """``pack`` with every contact centre moved to where its ball was pressed (see the constants above).
+
+    The ``frames`` ("even", "odd" or "all") are registered among themselves: in rounds, each against a
+    table fitted on all the others (:func:`fit_table` with the depth term, on the exact normals inside
+    the contacts; one frame left out of the summed normal equations). The other frames (the held-out
+    ones) are then each registered against the table of all of ``frames``, so that a held-out frame's
+    centre depends on the fitted frames and on itself only. Radii are kept. Returns the new pack and a
+    report: ``offsets_px`` (N, 2) (new minus annotated), ``rms_offset_px`` (fitted frames, held-out
+    frames; None without held-out frames), ``rounds``, ``stride`` (px between samples)."""
+    log = log or (lambda msg: None)
+    idx = pack.select(frames)
+    rest = [i for i in range(len(pack.imgs)) if i not in set(idx)]
+    bg = upsample_background(fit_background(pack.f0), pack.shape)
+    cents = pack.centers_px.astype(np.float64).copy()
+    stride = max(1, int(np.median(pack.radii_px) / REGISTER_SAMPLES))
+
+    def samples(j):
+        return _cap_samples(pack, j, cents[j], bg, mm_per_px, ball_diameter_mm, stride)
+
+    def place(i, table):
+        return _place(pack, i, table, bg, mm_per_px, ball_diameter_mm, stride)
+
+    rounds = 0
+    for rounds in range(1, REGISTER_ROUNDS + 1):
+        eqs = {j: normal_equations([samples(j)]) for j in idx}
+        total = {"ata": sum(e["ata"] for e in eqs.values()), "aty": sum(e["aty"] for e in eqs.values()),
+                 "n": sum(e["n"] for e in eqs.values()), "n_shadow": 0}
+        m = _system(total, N_BINS, REGISTER_SMOOTH)
+        lu = splu(m)
+        new = cents.copy()
+        for i in idx:
+            new[i] = place(i, _leave_out(m, lu, total["aty"], eqs[i]))
+        moved = float(np.abs(new - cents).max())
+        cents = new
+        if moved <= 1.0:
+            break
+    if rest:
+        t = fit_table([samples(j) for j in idx], smooth=REGISTER_SMOOTH)
+        for i in rest:
+            cents[i] = place(i, t)
+    off = cents - pack.centers_px
+    rms = [float(np.sqrt((off[s] ** 2).sum(axis=1).mean())) if len(s) else None for s in (idx, rest)]
+    log(f"press centres registered ({rounds} rounds): moved {rms[0]:.1f} px RMS from the annotation (fitted frames)"
+        + (f", {rms[1]:.1f} px (the others)" if rest else ""))
+    return dataclasses.replace(pack, centers_px=cents), {"offsets_px": off.tolist(), "rms_offset_px": rms,
+                                                         "rounds": rounds, "stride": stride}
 
 
 # --------------------------------------------------------------------------------------
@@ -387,18 +553,27 @@ def check_pack(pack: DataPack, frames: str, mm_per_px: float, ball_diameter_mm: 
     return idx, held
 
 
-def heldout_score(profile_path: str | Path, pack: DataPack, frames: str, ball_diameter_mm: float) -> dict | None:
+def heldout_score(profile_path: str | Path, pack: DataPack, frames: str, ball_diameter_mm: float,
+                  offsets_px=None) -> dict | None:
     """The written profile scored on the frames it was not fitted on (:func:`gelsim.realism.evaluate`):
-    None for ``frames == "all"``."""
+    None for ``frames == "all"``. The balls are placed at the annotated centres; with ``offsets_px``
+    ``(N, 2)`` (:func:`register_presses`' report) the result also holds ``"registered"``: the same
+    score with the registered centres."""
     from .realism import evaluate
     from .sensor import load_profile
 
     other = HELDOUT[frames]
     if other is None:
         return None
-    res = evaluate(load_profile(profile_path), pack, other, ball_diameter_mm=ball_diameter_mm)
+    prof = load_profile(profile_path)
+    res = evaluate(prof, pack, other, ball_diameter_mm=ball_diameter_mm)
     res.pop("example", None)
     res["frame_set"] = other
+    if offsets_px is not None:
+        moved = dataclasses.replace(pack, centers_px=pack.centers_px + np.asarray(offsets_px, np.float64))
+        reg = evaluate(prof, moved, other, ball_diameter_mm=ball_diameter_mm)
+        reg.pop("example", None)
+        res["registered"] = reg
     return res
 
 
@@ -421,6 +596,7 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
     idx, _ = check_pack(pack, frames, mm_per_px, ball_diameter_mm)
     h, w = pack.shape
     log = log or (lambda msg: None)
+    pack, registration = register_presses(pack, frames, mm_per_px, ball_diameter_mm, log)
     desc = description or (f"{name or out_path.stem}: {w}x{h} at {mm_per_px:g} mm/px, fitted by `gelsim calibrate` "
                            f"on {Path(pack.source).name or 'a data pack'}")
     prof = dataclasses.replace(
@@ -511,6 +687,6 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
               f"Other values come from the base profile." + (f"\n{note}" if note else ""))
     atomic_write_text(out_path, dump_toml(data, header))
     return {"profile": str(out_path), "background": str(bg_file), "table": str(lut_file),
-            "frames": idx, "best": best, "trials": trials,
+            "frames": idx, "best": best, "trials": trials, "registration": registration,
             "noise": {"read_sigma_dn": read, "shot_gain": shot}}
 

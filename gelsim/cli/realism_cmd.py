@@ -96,7 +96,8 @@ def run_calibrate(args) -> int:
                     ball_diameter_mm=args.ball_diameter_mm, log=log, description=args.description,
                     note=NOTES.get(args.datapack, ""))
     log("scoring the held-out frames")
-    rep["heldout"] = heldout_score(rep["profile"], pack, args.frames, args.ball_diameter_mm)
+    rep["heldout"] = heldout_score(rep["profile"], pack, args.frames, args.ball_diameter_mm,
+                                   rep["registration"]["offsets_px"])
     if args.json:
         print_json(rep)
         return 0
@@ -110,10 +111,15 @@ def run_calibrate(args) -> int:
     if h is None:
         print("held-out score: none (fitted on all frames)")
     else:
-        print(f"held-out score on the {h['frames']} {h['frame_set']} frames: skill {h['skill']:.3f}, contact PSNR "
-              f"{h['contact']['psnr']:.2f} dB (background alone {h['baseline']['contact']['psnr']:.2f}), contact L1 "
-              f"{h['contact']['l1']:.2f} (background alone {h['baseline']['contact']['l1']:.2f})")
-        print(small_slope_line(h["small_slope"]))
+        reg = rep["registration"]["rms_offset_px"]
+        print(f"press centres registered: {reg[0]:.1f} px RMS from the annotation on the fitted frames, "
+              f"{reg[1]:.1f} px on the held-out ones")
+        for label, r in (("annotated centres", h), ("registered centres", h["registered"])):
+            print(f"held-out score on the {r['frames']} {h['frame_set']} frames, {label}: skill {r['skill']:.3f}, "
+                  f"contact PSNR {r['contact']['psnr']:.2f} dB (background alone "
+                  f"{r['baseline']['contact']['psnr']:.2f}), contact L1 {r['contact']['l1']:.2f} "
+                  f"(background alone {r['baseline']['contact']['l1']:.2f})")
+            print("  " + small_slope_line(r["small_slope"]))
     return 0
 
 
