@@ -44,6 +44,14 @@ FIT_STRIDE = 2          # every 2nd pixel each way: neighbours are nearly the sa
 SMOOTH_WEIGHT = 3.0     # second-difference penalty between bins, per unit of sample weight: the first guess;
                         # the fit then picks the weight from DEFAULT_GRID["smooth_weight"] by cross-validation
 RIDGE_WEIGHT = 1e-3     # keeps bins without samples near zero
+# The spatial terms (the change over the field, T1 xn + T2 yn, and the depth term's D1 xn + D2 yn) are
+# only as good as the spread of the presses over the field. The GelSight Mini's 24 presses all lie
+# within 0.1 of the field's centre (xn, yn in -1..1): there the fit made them 300-400 DN per unit of
+# field, extrapolated into visible seams between the renderer's tiles and colour casts across the
+# field. Each spatial coefficient is held towards zero by SPATIAL_RIDGE times the data's weight on its
+# constant counterpart: as if the presses' positions had a spread of 0.1 (RMS, field units) more
+# than they have. The R1.5's presses span -0.8..0.8, a spread of about 0.5: its terms hardly change.
+SPATIAL_RIDGE = 0.01
 # Pixels outside the contact weigh 0.3 in the table's fit. There the normals come from the imprint
 # model's spread, which ends at about 1.8 contact radii while real presses change the image out to
 # 2.5 (docs/realism.md): the real gel is still sloped where the model's is flat. At near-flat normals
@@ -264,7 +272,18 @@ def _system(eq: dict, nb: int, smooth: float) -> sparse.csc_matrix:
     ncol = eq["ata"].shape[0]
     reg = _regulariser(nb, ncol)
     lam = smooth * eq["n"] / (nb * nb)
-    m = (eq["ata"] + lam * (reg.T @ reg) + RIDGE_WEIGHT * lam * sparse.identity(ncol)).tocsc()
+    # the spatial terms (T1, T2 of each bin; the depth term's D1, D2) are held towards zero by
+    # SPATIAL_RIDGE times the data's weight on their constant counterparts (T0 of the bin; D0)
+    diag = eq["ata"].diagonal()
+    spatial = np.zeros(ncol)
+    ntab = 3 * nb * nb
+    const = np.arange(0, ntab, 3)
+    spatial[const + 1] = spatial[const + 2] = SPATIAL_RIDGE * diag[const]
+    if ncol > ntab:
+        d0 = ntab + eq["n_shadow"]
+        spatial[d0 + 1] = spatial[d0 + 2] = SPATIAL_RIDGE * diag[d0]
+    m = (eq["ata"] + lam * (reg.T @ reg) + RIDGE_WEIGHT * lam * sparse.identity(ncol)
+         + sparse.diags(spatial)).tocsc()
     # T(0, 0) = 0: a flat gel shows the background, so pin the centre bin's three terms
     c = ((nb // 2) * nb + nb // 2) * 3
     pin = sparse.lil_matrix((ncol, ncol))
@@ -319,7 +338,7 @@ def predict(table: dict, s: dict, nb: int = N_BINS) -> np.ndarray:
 # contact the gel takes the ball's shape, so a press's colours there follow from its centre alone
 # (the ball's normals and depth; no gel model): each centre is moved to where its press agrees best
 # with a shading table fitted on the other presses. Constants:
-REGISTER_REACH = 0.75   # search within 0.75 contact radii of the annotated centre (the Mini's worst: 0.47)
+REGISTER_REACH = 0.75   # search within 0.75 contact radii of the annotated centre (the Mini's worst: 0.49)
 REGISTER_GRID = 9       # coarse search: 9 x 9 centres over the reach (0.19 radii apart, 8.6 px on the Mini:
                         # inside the 10-25 px over which its colours turn), then a pattern search
 REGISTER_TOL_PX = 0.25  # the pattern search stops at this step, px
@@ -328,12 +347,20 @@ REGISTER_SAMPLES = 20   # sample every n-th pixel each way, n = median contact r
                         # twice as many samples each way differ by under 0.3 / 0.8 px. On a synthetic pack
                         # with 11-15 px contacts every 2nd pixel missed the true centres by 2.6 px RMS,
                         # every pixel by 1.0
-REGISTER_SMOOTH = 0.3   # the reference table's smoothness: sharp enough for the Mini's colour wheel (the
-                        # fit picks 0.1 there), smooth enough for the R1.5 (1.0-3.0); offsets found with
-                        # 0.1 / 0.3 / 1.0 differ by under a pixel (docs/realism.md)
+REGISTER_SMOOTH = 0.3   # the reference table's smoothness, between the Mini's fitted 0.1 (its colour wheel)
+                        # and the R1.5's 1.0-3.0; on the Mini, 0.3 and 3.0 move the centres by 9.56 and
+                        # 9.58 px RMS
 REGISTER_CG_RTOL = 1e-6 # relative residual of each left-out table's solve (its colours to well under 0.1 DN)
 REGISTER_ROUNDS = 4     # rounds over the fitted presses (each against the others' table); stops earlier
                         # once no centre moves by more than a pixel
+# Registration is applied only where the annotation is demonstrably off: when it removes at least half
+# of the misfit inside the contacts that the annotated centres leave (mean over the fitted frames, each
+# against a table of the others). Where a sensor's response is nearly linear in the slope, a shift of
+# the centre looks much like a uniform colour change, and the search chases the table's own errors
+# instead: measured on the even frames, it removes 29% on the R1.5 (its rims visible; centres moved
+# 4.1 px RMS, in step with their place in the field, i.e. the table's spatial error), and on a synthetic
+# pack with known centres it moves them by 1.0 px RMS and *adds* 91%; on the GelSight Mini it removes 90%.
+REGISTER_MIN_EXPLAINED = 0.5
 
 
 def _cap_samples(pack: DataPack, i: int, center, bg: np.ndarray, mm_per_px: float, ball_mm: float,
@@ -351,11 +378,21 @@ def _cap_samples(pack: DataPack, i: int, center, bg: np.ndarray, mm_per_px: floa
             "target": pack.imgs[i][yy, xx].astype(np.float32) - bg[yy, xx]}
 
 
+def _misfit(pack: DataPack, i: int, center, table: dict, bg: np.ndarray, mm_per_px: float, ball_mm: float,
+            stride: int) -> float:
+    """Mean squared difference (DN^2 per sample and channel) between frame ``i``'s colour change inside
+    its contact, the ball centred on ``center``, and ``table``'s; inf when no pixel is inside."""
+    s = _cap_samples(pack, i, center, bg, mm_per_px, ball_mm, stride)
+    if s["nx"].size == 0:
+        return math.inf
+    return float(((predict(table, s) - s["target"]) ** 2).mean())
+
+
 def _place(pack: DataPack, i: int, table: dict, bg: np.ndarray, mm_per_px: float, ball_mm: float,
            stride: int) -> np.ndarray:
     """The centre (x, y) px within REGISTER_REACH contact radii of frame ``i``'s annotated one where its
-    press agrees best (least squared error inside the contact) with ``table``: a coarse grid, then a
-    pattern search (one step each way, halved when no neighbour is better)."""
+    press agrees best (:func:`_misfit`) with ``table``: a coarse grid, then a pattern search (one step
+    each way, halved when no neighbour is better)."""
     c0 = pack.centers_px[i]
     reach = REGISTER_REACH * pack.radii_px[i]
     h, w = pack.shape
@@ -365,10 +402,7 @@ def _place(pack: DataPack, i: int, table: dict, bg: np.ndarray, mm_per_px: float
             return math.inf
         if not (0 <= c[0] <= w - 1 and 0 <= c[1] <= h - 1):
             return math.inf
-        s = _cap_samples(pack, i, c, bg, mm_per_px, ball_mm, stride)
-        if s["nx"].size == 0:
-            return math.inf
-        return float(((predict(table, s) - s["target"]) ** 2).mean())
+        return _misfit(pack, i, c, table, bg, mm_per_px, ball_mm, stride)
 
     offs = np.linspace(-reach, reach, REGISTER_GRID)
     best_e, best = min((cost(c0 + (dx, dy)), tuple(c0 + (dx, dy))) for dy in offs for dx in offs)
@@ -400,52 +434,77 @@ def _leave_out(m: sparse.csc_matrix, lu, aty: np.ndarray, eq: dict) -> dict:
 
 def register_presses(pack: DataPack, frames: str, mm_per_px: float, ball_diameter_mm: float,
                      log=None) -> tuple[DataPack, dict]:
-    """``pack`` with every contact centre moved to where its ball was pressed (see the constants above).
+    """``pack`` with its contact centres registered from the images, if the annotation is off (see the
+    constants above).
 
     The ``frames`` ("even", "odd" or "all") are registered among themselves: in rounds, each against a
     table fitted on all the others (:func:`fit_table` with the depth term, on the exact normals inside
-    the contacts; one frame left out of the summed normal equations). The other frames (the held-out
-    ones) are then each registered against the table of all of ``frames``, so that a held-out frame's
-    centre depends on the fitted frames and on itself only. Radii are kept. Returns the new pack and a
-    report: ``offsets_px`` (N, 2) (new minus annotated), ``rms_offset_px`` (fitted frames, held-out
-    frames; None without held-out frames), ``rounds``, ``stride`` (px between samples)."""
+    the contacts; one frame left out of the summed normal equations). The registration is *applied*
+    only if it removes at least REGISTER_MIN_EXPLAINED of the left-out misfit (:func:`_misfit`, mean
+    over ``frames``) that the annotated centres leave; otherwise every centre stays as annotated. When
+    applied, the other frames (the held-out ones) are each registered against the table of all of
+    ``frames``, so that a held-out frame's centre depends on the fitted frames and on itself only.
+    Radii are kept.
+
+    Returns the pack (new centres, or ``pack`` itself) and a report: ``applied``; ``explained`` (the
+    fraction of the misfit removed); ``misfit_dn2`` (annotated, registered); ``found_offsets_px``
+    (N, 2) (registered minus annotated; zero for held-out frames when not applied);
+    ``offsets_px`` (those applied: zero when not); ``rms_offset_px`` (of the found offsets: fitted
+    frames, held-out frames, None without held-out frames); ``rounds``; ``stride`` (px between
+    samples)."""
     log = log or (lambda msg: None)
     idx = pack.select(frames)
     rest = [i for i in range(len(pack.imgs)) if i not in set(idx)]
     bg = upsample_background(fit_background(pack.f0), pack.shape)
-    cents = pack.centers_px.astype(np.float64).copy()
+    annotated = pack.centers_px.astype(np.float64)
     stride = max(1, int(np.median(pack.radii_px) / REGISTER_SAMPLES))
 
-    def samples(j):
-        return _cap_samples(pack, j, cents[j], bg, mm_per_px, ball_diameter_mm, stride)
-
-    def place(i, table):
-        return _place(pack, i, table, bg, mm_per_px, ball_diameter_mm, stride)
-
-    rounds = 0
-    for rounds in range(1, REGISTER_ROUNDS + 1):
-        eqs = {j: normal_equations([samples(j)]) for j in idx}
+    def left_out_tables(cents):
+        """(frame, table of the other frames of ``idx`` at ``cents``) for each frame of ``idx``."""
+        eqs = {j: normal_equations([_cap_samples(pack, j, cents[j], bg, mm_per_px, ball_diameter_mm, stride)])
+               for j in idx}
         total = {"ata": sum(e["ata"] for e in eqs.values()), "aty": sum(e["aty"] for e in eqs.values()),
                  "n": sum(e["n"] for e in eqs.values()), "n_shadow": 0}
         m = _system(total, N_BINS, REGISTER_SMOOTH)
         lu = splu(m)
-        new = cents.copy()
         for i in idx:
-            new[i] = place(i, _leave_out(m, lu, total["aty"], eqs[i]))
+            yield i, _leave_out(m, lu, total["aty"], eqs[i])
+
+    def misfit(cents):
+        return float(np.mean([_misfit(pack, i, cents[i], t, bg, mm_per_px, ball_diameter_mm, stride)
+                              for i, t in left_out_tables(cents)]))
+
+    cents = annotated.copy()
+    rounds = 0
+    for rounds in range(1, REGISTER_ROUNDS + 1):
+        new = cents.copy()
+        for i, t in left_out_tables(cents):
+            new[i] = _place(pack, i, t, bg, mm_per_px, ball_diameter_mm, stride)
         moved = float(np.abs(new - cents).max())
         cents = new
         if moved <= 1.0:
             break
-    if rest:
-        t = fit_table([samples(j) for j in idx], smooth=REGISTER_SMOOTH)
+    before, after = misfit(annotated), misfit(cents)
+    explained = 1.0 - after / before if before > 0 else 0.0
+    applied = explained >= REGISTER_MIN_EXPLAINED
+    if applied and rest:
+        t = fit_table([_cap_samples(pack, j, cents[j], bg, mm_per_px, ball_diameter_mm, stride) for j in idx],
+                      smooth=REGISTER_SMOOTH)
         for i in rest:
-            cents[i] = place(i, t)
-    off = cents - pack.centers_px
-    rms = [float(np.sqrt((off[s] ** 2).sum(axis=1).mean())) if len(s) else None for s in (idx, rest)]
-    log(f"press centres registered ({rounds} rounds): moved {rms[0]:.1f} px RMS from the annotation (fitted frames)"
-        + (f", {rms[1]:.1f} px (the others)" if rest else ""))
-    return dataclasses.replace(pack, centers_px=cents), {"offsets_px": off.tolist(), "rms_offset_px": rms,
-                                                         "rounds": rounds, "stride": stride}
+            cents[i] = _place(pack, i, t, bg, mm_per_px, ball_diameter_mm, stride)
+    found = cents - annotated
+    rms = [float(np.sqrt((found[s] ** 2).sum(axis=1).mean())) if len(s) else None for s in (idx, rest)]
+    if not applied:
+        rms[1] = None
+    verdict = (f"moved by {rms[0]:.1f} px RMS (fitted frames)" + (f", {rms[1]:.1f} px (held-out frames)" if rms[1]
+               is not None else "") if applied else f"kept as annotated (moving them {rms[0]:.1f} px RMS would "
+               f"remove only {100 * explained:.0f}% < {100 * REGISTER_MIN_EXPLAINED:.0f}%)")
+    log(f"press centres: the annotated ones leave a misfit of {before:.1f} DN^2 inside the contacts, registered "
+        f"ones {after:.1f} ({100 * explained:.0f}% less): {verdict}")
+    report = {"applied": applied, "explained": explained, "misfit_dn2": [before, after],
+              "found_offsets_px": found.tolist(), "offsets_px": (found if applied else 0.0 * found).tolist(),
+              "rms_offset_px": rms, "rounds": rounds, "stride": stride}
+    return (dataclasses.replace(pack, centers_px=cents) if applied else pack), report
 
 
 # --------------------------------------------------------------------------------------
@@ -554,11 +613,12 @@ def check_pack(pack: DataPack, frames: str, mm_per_px: float, ball_diameter_mm: 
 
 
 def heldout_score(profile_path: str | Path, pack: DataPack, frames: str, ball_diameter_mm: float,
-                  offsets_px=None) -> dict | None:
+                  registration: dict | None = None) -> dict | None:
     """The written profile scored on the frames it was not fitted on (:func:`gelsim.realism.evaluate`):
-    None for ``frames == "all"``. The balls are placed at the annotated centres; with ``offsets_px``
-    ``(N, 2)`` (:func:`register_presses`' report) the result also holds ``"registered"``: the same
-    score with the registered centres."""
+    None for ``frames == "all"``. The balls are placed where the calibration placed them: at the
+    registered centres if ``registration`` (:func:`register_presses`' report) was applied (the result
+    then also holds ``"annotated"``, the same score at the pack's annotated centres), else at the
+    annotated ones. ``"centres"`` says which."""
     from .realism import evaluate
     from .sensor import load_profile
 
@@ -566,15 +626,17 @@ def heldout_score(profile_path: str | Path, pack: DataPack, frames: str, ball_di
     if other is None:
         return None
     prof = load_profile(profile_path)
-    res = evaluate(prof, pack, other, ball_diameter_mm=ball_diameter_mm)
-    res.pop("example", None)
-    res["frame_set"] = other
-    if offsets_px is not None:
-        moved = dataclasses.replace(pack, centers_px=pack.centers_px + np.asarray(offsets_px, np.float64))
-        reg = evaluate(prof, moved, other, ball_diameter_mm=ball_diameter_mm)
-        reg.pop("example", None)
-        res["registered"] = reg
-    return res
+
+    def score(p):
+        res = evaluate(prof, p, other, ball_diameter_mm=ball_diameter_mm)
+        res.pop("example", None)
+        res["frame_set"] = other
+        return res
+
+    if registration is None or not registration["applied"]:
+        return dict(score(pack), centres="annotated")
+    moved = dataclasses.replace(pack, centers_px=pack.centers_px + np.asarray(registration["offsets_px"], np.float64))
+    return dict(score(moved), centres="registered", annotated=score(pack))
 
 
 def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str = "even",
@@ -661,6 +723,9 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
     lights = fit_lights(plain, p_best.lights[0], gain_dn=p_best.shading.gain_dn, elevation_deg=elev)
     samples = [_frame_samples(p_best, pack, i, bg, ball_diameter_mm, shadow) for i in idx]
     table = fit_table(samples, smooth=smooth)
+    # the spatial and depth terms hold where the presses were: the renderer clamps positions into this box
+    xs, ys = np.concatenate([s["xn"] for s in samples]), np.concatenate([s["yn"] for s in samples])
+    table["position_box"] = np.array([xs.min(), xs.max(), ys.min(), ys.max()], np.float32)
     if shadow is not None:
         table.update(shadow)
     table.update(halo_spec())
