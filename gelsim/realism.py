@@ -255,6 +255,16 @@ class RealismRecord:
     baseline_crop_l1_dn: float = param(lo=0.0, hi=255.0, doc="the background alone: crop L1, DN")
     small_slope_rms_dn: float = param(lo=0.0, hi=255.0, doc="small-slope RMS error, DN")
     baseline_small_slope_rms_dn: float = param(lo=0.0, hi=255.0, doc="the background alone: small-slope RMS, DN")
+    centres: str = param("annotated", doc="where the balls were placed: 'annotated' (the pack's contact centres) "
+                                          "or 'registered' (as `gelsim calibrate` registered them from the images)")
+    annotated_skill: float | None = param(None, lo=-100.0, hi=1.0,
+                                          doc="with registered centres: the skill at the pack's annotated ones")
+
+    def validate(self, where: str) -> None:
+        if self.centres not in ("annotated", "registered"):
+            raise GelsimError(f"{where}: centres {self.centres!r} is not 'annotated' or 'registered'; fix it")
+        if (self.annotated_skill is None) != (self.centres == "annotated"):
+            raise GelsimError(f"{where}: give annotated_skill exactly when centres is 'registered'")
 
 
 def realism_records(path: str | Path | None = None) -> dict[str, RealismRecord]:

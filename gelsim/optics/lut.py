@@ -161,12 +161,12 @@ SHADOW_SCALE = 0.5
 # at 60 x 45, a steep full-frame weave took 13.9 ms at 640x480 and 22.6 ms at 960x720; at
 # 30 x 24, 9.5 and 18.2 ms (one core).
 MOSAIC_TILES = (30, 24)
-# Where the tiles' error bound (|T1| and |T2| times half a tile, in field units, at the table's largest
-# spatial terms) exceeds one 8-bit step, the lookup is exact instead: the 9-channel table looked up
-# per pixel and weighted by the pixel's own [1, xn, yn] (about 3x the lookup's time). The R1.5 table's
-# bound is 0.8 DN (mosaic); the GelSight Mini's, whose spatial terms are 10-20x larger, 13 DN: its
-# tiles showed as seams of up to 20 DN.
-MOSAIC_MAX_ERR_DN = 1.0
+# Where the tiles' error bound (the table's largest |T1| and |T2|, DN per unit of field, times half a
+# tile in field units: tile width / image width) exceeds 2 DN, the lookup is exact instead: the
+# 9-channel table looked up per pixel and weighted by the pixel's own [1, xn, yn] (about 3x the
+# lookup's time). The R1.5 table's bound is 1.6 DN (largest difference measured 1.1 DN: tiles); the
+# GelSight Mini's, whose spatial terms are 5-8x larger, 10 DN (tiles showed as seams of up to 20 DN).
+MOSAIC_MAX_ERR_DN = 2.0
 
 
 def _bilinear_shift(src: np.ndarray, pad: int, shape: tuple[int, int], vx: float, vy: float,
@@ -406,6 +406,9 @@ class LutShader(Shader):
         # [shading] gain_dn is the photometric scale of both backends: the table's DN were fitted
         # at the profile's gain_dn of the time (stored with it), so another gain scales them
         gain = profile.shading.gain_dn / t["gain_dn"] if "gain_dn" in t else 1.0
+        # tiles or the exact lookup (MOSAIC_MAX_ERR_DN): decided on the table as fitted, so that a unit's
+        # gains (gelsim.units) or another gain_dn never switch between them
+        self._spatial_dn = (float(np.abs(t["table"][..., 3:6]).max()), float(np.abs(t["table"][..., 6:9]).max()))
         t = adjust_channels(t, profile.shading.channel_gain, profile.shading.channel_rotation_deg)
         self.table = t["table"] * np.float32(gain)
         self.nb = self.table.shape[0]
@@ -445,7 +448,7 @@ class LutShader(Shader):
         half = (nb - 1) / 2.0
         self._bufs: dict[str, np.ndarray] = {}
         # the tiles' error bound, DN: a pixel is at most half a tile (in field units) from its tile's centre
-        bound = float(np.abs(t[:, :, 1]).max()) * tw / w + float(np.abs(t[:, :, 2]).max()) * th / h
+        bound = self._spatial_dn[0] * tw / w + self._spatial_dn[1] * th / h
         self.exact = bound > MOSAIC_MAX_ERR_DN
         if self.exact:
             px, py = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
