@@ -34,7 +34,7 @@ from scipy.sparse.linalg import LinearOperator, cg, splu, spsolve
 from .atomic import atomic_write_npz, atomic_write_text, write_png
 from .errors import GelsimError
 from .optics.lut import coarse_features, normal_xy, shadow_factors
-from .params import dump_toml, to_dict
+from .params import dump_toml, to_dict, toml_comments
 from .realism import DISK_RADII, DataPack, ball_cap, ball_depth, ball_indentation_mm, check_geometry, disk_mask
 
 # Fitting constants (why each has its value):
@@ -671,6 +671,22 @@ def heldout_score(profile_path: str | Path, pack: DataPack, frames: str, ball_di
     return dict(score(moved), centres="registered", annotated=score(pack))
 
 
+def _carried_comments(base_profile, data: dict) -> dict[str, str]:
+    """The base profile file's comments (its sources and reasons) for the values the calibrated profile
+    carries over unchanged (by dotted key, :func:`gelsim.params.toml_comments`)."""
+    if not base_profile.source or not Path(base_profile.source).is_file():
+        return {}
+    base = to_dict(base_profile)
+    keep = {}
+    for key, note in toml_comments(base_profile.source).items():
+        section, _, name = key.rpartition(".")
+        ours = data.get(section, {}) if section else data
+        theirs = base.get(section) or {} if section else base
+        if isinstance(ours, dict) and isinstance(theirs, dict) and name in ours and ours[name] == theirs.get(name):
+            keep[key] = note
+    return keep
+
+
 def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str = "even",
               mm_per_px: float = 0.0295, ball_diameter_mm: float = 4.0, grid: dict | None = None,
               name: str | None = None, description: str | None = None, note: str = "", log=None) -> dict:
@@ -781,8 +797,12 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
               f"(mm_per_px {mm_per_px}, ball {ball_diameter_mm} mm). Fitted: background image, shading table,\n"
               f"gel thickness_mm and membrane_smoothing_mm, noise, shadows (one per LED: slope, penumbra, colour);\n"
               f"lights: azimuths from the table (for pyrender and the shadows).\n"
-              f"Other values come from the base profile." + (f"\n{note}" if note else ""))
-    atomic_write_text(out_path, dump_toml(data, header))
+              + ("Press centres registered from the images (gelsim.calibrate.register_presses: "
+                 f"{registration['rms_offset_px'][0]:.1f} px RMS from the annotation).\n"
+                 if registration["applied"] else "Press centres as annotated (registration would not help).\n")
+              + 
+              f"Other values come from the base profile, with their comments." + (f"\n{note}" if note else ""))
+    atomic_write_text(out_path, dump_toml(data, header, _carried_comments(base_profile, data)))
     return {"profile": str(out_path), "background": str(bg_file), "table": str(lut_file),
             "frames": idx, "best": best, "trials": trials, "registration": registration,
             "noise": {"read_sigma_dn": read, "shot_gain": shot}}

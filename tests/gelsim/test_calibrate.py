@@ -71,6 +71,9 @@ def test_calibration_recovers_gel_thickness_noise_and_light_azimuths(fitted):
     assert rep["noise"]["shot_gain"] == pytest.approx(0.0, abs=0.01)
     prof = load_profile(d / "fit.toml")
     assert prof.shading.model == "lut" and prof.gel.thickness_mm == TRUE_THICKNESS_MM
+    # the base profile's unit ranges are carried over with their reasons
+    assert prof.unit_variation == load_profile("vitac").unit_variation
+    assert "led_intensity_frac = 0.15  # " in (d / "fit.toml").read_text()
     for light, az in zip(prof.lights, LIGHT_AZIMUTHS):
         err = (light.azimuth_deg - az + 180.0) % 360.0 - 180.0
         assert abs(err) < 12.0, (light.name, light.azimuth_deg, az)

@@ -23,6 +23,9 @@ def test_shipped_profiles_load_and_calibrated_ones_have_a_table():
     digit = load_profile("digit")
     assert digit.shape == (320, 240) and digit.markers.enabled is False
     assert digit.unit_variation is not None
+    for name in ("gelsight-r15", "gelsight-mini"):
+        v = load_profile(name).unit_variation
+        assert v is not None and v.led_intensity_frac > 0 and v.marker_size_frac == 0.0
 
 
 def test_sensors_list_text_and_json(capsys):
