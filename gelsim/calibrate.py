@@ -334,8 +334,8 @@ def predict(table: dict, s: dict, nb: int = N_BINS) -> np.ndarray:
 # A pack's contact centres are annotated by hand (taxim's tool moves a circle in 2 px steps). Where
 # the contact's rim shows (the R1.5) they are right to a few pixels; where it does not (the GelSight
 # Mini, whose image fades towards the rim and turns through its whole colour wheel within 10-25 px of
-# the ball's lowest point) they are off by 5-8 px RMS, up to 22 px (docs/realism.md). Inside the
-# contact the gel takes the ball's shape, so a press's colours there follow from its centre alone
+# the ball's lowest point) they are off by 5.5 / 8.5 px RMS in x / y, up to 21 px (docs/realism.md).
+# Inside the contact the gel takes the ball's shape, so a press's colours there follow from its centre alone
 # (the ball's normals and depth; no gel model): each centre is moved to where its press agrees best
 # with a shading table fitted on the other presses. Constants:
 REGISTER_REACH = 0.75   # search within 0.75 contact radii of the annotated centre (the Mini's worst: 0.49)
@@ -345,8 +345,8 @@ REGISTER_TOL_PX = 0.25  # the pattern search stops at this step, px
 REGISTER_SAMPLES = 20   # sample every n-th pixel each way, n = median contact radius / 20 (at least 1): every
                         # 2nd on the Mini (radii 34-57 px), 3rd on the R1.5 (59-67); centres found at
                         # twice as many samples each way differ by under 0.3 / 0.8 px. On a synthetic pack
-                        # with 11-15 px contacts every 2nd pixel missed the true centres by 2.6 px RMS,
-                        # every pixel by 1.0
+                        # with 11-15 px contacts and exact centres, every 2nd pixel moves them by 1.0 px
+                        # RMS, every pixel by 0.6
 REGISTER_SMOOTH = 0.3   # the reference table's smoothness, between the Mini's fitted 0.1 (its colour wheel)
                         # and the R1.5's 1.0-3.0; on the Mini, 0.3 and 3.0 move the centres by 9.56 and
                         # 9.58 px RMS
@@ -500,7 +500,8 @@ def register_presses(pack: DataPack, frames: str, mm_per_px: float, ball_diamete
     # that it could not recover, 77% less instead of 6% more)
     after = float(np.mean([_misfit(pack, i, cents[i], t, bg, mm_per_px, ball_diameter_mm, stride)
                            for i, t in left_out_tables(cents)]))
-    explained = 1.0 - after / before if before > 0 else 0.0
+    # a press with no sampled pixel inside its contact (a contact under a pixel wide) scores inf: no verdict
+    explained = 1.0 - after / before if math.isfinite(before) and math.isfinite(after) and before > 0 else 0.0
     applied = explained >= REGISTER_MIN_EXPLAINED
     if applied and rest:
         t = fit_table([_cap_samples(pack, j, cents[j], bg, mm_per_px, ball_diameter_mm, stride) for j in idx],

@@ -235,6 +235,12 @@ def test_cli_calibrate_and_realism(fitted, tmp_path, capsys):
     import cv2
     img = cv2.imread(str(out_png))
     assert img.shape == (truth.shape[0], 3 * truth.shape[1], 3)
+    # --centres registered places the balls as calibrate does: here (exact centres) where annotated
+    assert main(["realism", "--profile", str(d / "fit.toml"), "--datapack", str(d / "pack.npz"),
+                 "--mm-per-px", str(truth.image.mm_per_px), "--centres", "registered", "--json"]) == 0
+    reg = json.loads(capsys.readouterr().out)
+    assert reg["centres"] == "annotated" and reg["registration"]["applied"] is False
+    assert reg["skill"] == pytest.approx(doc["skill"])
     assert main(["realism", "--profile", str(d / "fit.toml"), "--datapack", str(d / "pack.npz"),
                  "--mm-per-px", str(truth.image.mm_per_px)]) == 0
     text = capsys.readouterr().out
