@@ -155,8 +155,30 @@ def to_dict(obj: Any) -> Any:
     return obj
 
 
-def dump_toml(data: dict, header: str = "") -> str:
-    """Serialise nested plain data (as from :func:`to_dict`) to TOML text."""
+def toml_comments(path: str | Path) -> dict[str, str]:
+    """The trailing comments of a TOML file's ``key = value  # comment`` lines, by dotted key
+    (``"section.key"``; keys before any table: ``"key"``), for :func:`dump_toml` to keep them. Keys in
+    arrays of tables (``[[lights]]``) and lines with a string before the ``#`` are skipped."""
+    out: dict[str, str] = {}
+    section: str | None = ""
+    for line in Path(path).read_text().splitlines():
+        s = line.strip()
+        if s.startswith("[["):
+            section = None
+        elif s.startswith("["):
+            section = s.strip("[]").strip()
+        elif section is not None and not s.startswith("#") and "=" in s and "#" in s:
+            value, note = s.split("#", 1)
+            if '"' not in value:
+                key = value.split("=", 1)[0].strip()
+                out[f"{section}.{key}" if section else key] = note.strip()
+    return out
+
+
+def dump_toml(data: dict, header: str = "", comments: dict[str, str] | None = None) -> str:
+    """Serialise nested plain data (as from :func:`to_dict`) to TOML text; ``comments`` (by dotted
+    key, see :func:`toml_comments`) go after their keys' values."""
+    comments = comments or {}
     def fmt(v: Any) -> str:
         if isinstance(v, bool):
             return "true" if v else "false"
@@ -176,7 +198,8 @@ def dump_toml(data: dict, header: str = "") -> str:
         scalars = {k: v for k, v in table.items() if not isinstance(v, dict)
                    and not (isinstance(v, list) and v and all(isinstance(x, dict) for x in v))}
         for k, v in scalars.items():
-            lines.append(f"{k} = {fmt(v)}")
+            note = comments.get(f"{prefix}.{k}" if prefix else k)
+            lines.append(f"{k} = {fmt(v)}" + (f"  # {note}" if note else ""))
         for k, v in table.items():
             name = f"{prefix}.{k}" if prefix else k
             if isinstance(v, dict):

@@ -255,6 +255,16 @@ class RealismRecord:
     baseline_crop_l1_dn: float = param(lo=0.0, hi=255.0, doc="the background alone: crop L1, DN")
     small_slope_rms_dn: float = param(lo=0.0, hi=255.0, doc="small-slope RMS error, DN")
     baseline_small_slope_rms_dn: float = param(lo=0.0, hi=255.0, doc="the background alone: small-slope RMS, DN")
+    centres: str = param("annotated", doc="where the balls were placed: 'annotated' (the pack's contact centres) "
+                                          "or 'registered' (as `gelsim calibrate` registered them from the images)")
+    annotated_skill: float | None = param(None, lo=-100.0, hi=1.0,
+                                          doc="with registered centres: the skill at the pack's annotated ones")
+
+    def validate(self, where: str) -> None:
+        if self.centres not in ("annotated", "registered"):
+            raise GelsimError(f"{where}: centres {self.centres!r} is not 'annotated' or 'registered'; fix it")
+        if (self.annotated_skill is None) != (self.centres == "annotated"):
+            raise GelsimError(f"{where}: give annotated_skill exactly when centres is 'registered'")
 
 
 def realism_records(path: str | Path | None = None) -> dict[str, RealismRecord]:
@@ -334,19 +344,38 @@ def summarize(per_frame: list[dict], base_frame: list[dict]) -> dict:
     return out
 
 
-def ball_slope(center_px, radius_px: float, shape: tuple[int, int], mm_per_px: float,
-               ball_diameter_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The gel's slope where it takes the ball's shape (inside the annotated contact):
-    ``(mask, gx, gy)``, bool ``(H, W)`` and float64 ``(n,)`` for the mask's pixels (row-major), the
-    gradient of the imprint depth (mm/mm): ``-(p - c) / sqrt(R^2 - rho^2)``, steepest at the rim."""
+def ball_cap(center_px, radius_px: float, shape: tuple[int, int], mm_per_px: float, ball_diameter_mm: float,
+             stride: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels where the gel takes the ball's shape (inside the annotated contact, clipped to the
+    ball's radius; every ``stride``-th row and column, counted from 0) and the sphere there:
+    ``(yy, xx, gx, gy, sag)``, int ``(n,)`` row and column (row-major order), the gradient of the
+    imprint depth ``-(p - c) / sqrt(R^2 - rho^2)`` (mm/mm, steepest at the rim) and the sphere's rise
+    above its lowest point ``R - sqrt(R^2 - rho^2)`` (mm), float64 ``(n,)``."""
     h, w = shape
     r_ball = ball_diameter_mm / 2.0
-    m = disk_mask(center_px, min(radius_px, r_ball / mm_per_px), shape)
-    yy, xx = np.nonzero(m)
-    dx = (xx - center_px[0]) * mm_per_px
-    dy = (yy - center_px[1]) * mm_per_px
-    den = np.sqrt(np.maximum(r_ball * r_ball - dx * dx - dy * dy, 1e-12))
-    return m, -dx / den, -dy / den
+    r = min(radius_px, r_ball / mm_per_px)
+    cx, cy = float(center_px[0]), float(center_px[1])
+    y0, y1 = max(0, math.ceil((cy - r) / stride)), min(-(-h // stride), math.floor((cy + r) / stride) + 1)
+    x0, x1 = max(0, math.ceil((cx - r) / stride)), min(-(-w // stride), math.floor((cx + r) / stride) + 1)
+    y = np.arange(y0, max(y0, y1)) * stride
+    x = np.arange(x0, max(x0, x1)) * stride
+    yy, xx = np.meshgrid(y, x, indexing="ij")
+    keep = (xx - cx) ** 2 + (yy - cy) ** 2 <= r * r
+    yy, xx = yy[keep], xx[keep]
+    dx = (xx - cx) * mm_per_px
+    dy = (yy - cy) * mm_per_px
+    root = np.sqrt(np.maximum(r_ball * r_ball - dx * dx - dy * dy, 1e-12))
+    return yy, xx, -dx / root, -dy / root, r_ball - root
+
+
+def ball_slope(center_px, radius_px: float, shape: tuple[int, int], mm_per_px: float,
+               ball_diameter_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The gel's slope where it takes the ball's shape (:func:`ball_cap`): ``(mask, gx, gy)``, bool
+    ``(H, W)`` and float64 ``(n,)`` for the mask's pixels (row-major)."""
+    yy, xx, gx, gy, _ = ball_cap(center_px, radius_px, shape, mm_per_px, ball_diameter_mm)
+    m = np.zeros(shape, bool)
+    m[yy, xx] = True
+    return m, gx, gy
 
 
 def small_slope_frame(sim_delta: np.ndarray, real_delta: np.ndarray, center_px, radius_px: float,

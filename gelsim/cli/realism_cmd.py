@@ -58,6 +58,11 @@ def register(sub) -> None:
                    help="size of one pixel on the gel, mm [default: the profile's]")
     r.add_argument("--ball-diameter-mm", type=float, default=4.0, help="diameter of the pressed ball, mm")
     r.add_argument("--channel-order", default="bgr", choices=["bgr", "rgb"], help="colour order of the pack")
+    r.add_argument("--centres", default="annotated", choices=["annotated", "registered"],
+                   help="where each ball is placed: the pack's annotated contact centres, or as `gelsim calibrate` "
+                        "places them: registered from the images (odd frames against a table of the even ones, "
+                        "even against odd, all one left out at a time) when that removes most of the misfit the "
+                        "annotation leaves, else annotated")
     r.add_argument("--out", default=None, metavar="FILE.png",
                    help="write real | simulated | 3 x |difference| of the first scored frame [default: none]")
     r.add_argument("--json", action="store_true", help="print one JSON document on stdout")
@@ -96,7 +101,7 @@ def run_calibrate(args) -> int:
                     ball_diameter_mm=args.ball_diameter_mm, log=log, description=args.description,
                     note=NOTES.get(args.datapack, ""))
     log("scoring the held-out frames")
-    rep["heldout"] = heldout_score(rep["profile"], pack, args.frames, args.ball_diameter_mm)
+    rep["heldout"] = heldout_score(rep["profile"], pack, args.frames, args.ball_diameter_mm, rep["registration"])
     if args.json:
         print_json(rep)
         return 0
@@ -110,19 +115,31 @@ def run_calibrate(args) -> int:
     if h is None:
         print("held-out score: none (fitted on all frames)")
     else:
-        print(f"held-out score on the {h['frames']} {h['frame_set']} frames: skill {h['skill']:.3f}, contact PSNR "
-              f"{h['contact']['psnr']:.2f} dB (background alone {h['baseline']['contact']['psnr']:.2f}), contact L1 "
-              f"{h['contact']['l1']:.2f} (background alone {h['baseline']['contact']['l1']:.2f})")
-        print(small_slope_line(h["small_slope"]))
+        for label, r in ((f"{h['centres']} centres", h), ("annotated centres", h.get("annotated"))):
+            if r is None:
+                continue
+            print(f"held-out score on the {r['frames']} {h['frame_set']} frames, {label}: skill {r['skill']:.3f}, "
+                  f"contact PSNR {r['contact']['psnr']:.2f} dB (background alone "
+                  f"{r['baseline']['contact']['psnr']:.2f}), contact L1 {r['contact']['l1']:.2f} "
+                  f"(background alone {r['baseline']['contact']['l1']:.2f})")
+            print("  " + small_slope_line(r["small_slope"]))
     return 0
 
 
+# the frames a scored set is registered against (gelsim.calibrate.register_presses): the others
+REGISTER_AGAINST = {"odd": "even", "even": "odd", "all": "all"}
+
+
 def realism_report(profile="gelsight-r15", datapack=None, frames: str = "odd", *, mm_per_px: float | None = None,
-                   ball_diameter_mm: float = 4.0, channel_order: str = "bgr", out=None) -> dict:
+                   ball_diameter_mm: float = 4.0, channel_order: str = "bgr", out=None,
+                   centres: str = "annotated") -> dict:
     """What ``gelsim realism --json`` prints (see :func:`gelsim.realism.evaluate`); ``mm_per_px``
-    None keeps the profile's."""
+    None keeps the profile's; ``centres`` "registered" places the balls at the centres
+    :func:`gelsim.calibrate.register_presses` finds (the report then holds ``"registration"``)."""
     from ..atomic import write_png
-    from ..realism import evaluate, side_by_side
+    from ..calibrate import register_presses
+    from ..errors import check_choice
+    from ..realism import check_geometry, evaluate, side_by_side
     from ..sensor import load_profile
 
     if mm_per_px is not None:
@@ -136,8 +153,16 @@ def realism_report(profile="gelsight-r15", datapack=None, frames: str = "odd", *
                           f"frames are {w}x{h}; score a profile fitted to this pack (`gelsim calibrate`)")
     if mm_per_px is not None:
         prof = dataclasses.replace(prof, image=dataclasses.replace(prof.image, mm_per_px=mm_per_px))
+    check_choice("centres", centres, ("annotated", "registered"))
+    registration = None
+    if centres == "registered":
+        check_geometry(pack, prof.image.mm_per_px, ball_diameter_mm, pack.source or "data pack")
+        pack, registration = register_presses(pack, REGISTER_AGAINST[frames], prof.image.mm_per_px, ball_diameter_mm)
     keep = pack.select(frames)[0]
     rep = evaluate(prof, pack, frames, ball_diameter_mm=ball_diameter_mm, keep=keep if out else None)
+    rep["centres"] = "registered" if registration is not None and registration["applied"] else "annotated"
+    if registration is not None:
+        rep["registration"] = registration
     example = rep.pop("example", None)
     if out and example is not None:
         write_png(out, side_by_side(*example))
@@ -150,11 +175,19 @@ def run_realism(args) -> int:
     from . import print_json
 
     rep = realism_report(args.profile, args.datapack, args.frames, mm_per_px=args.mm_per_px,
-                         ball_diameter_mm=args.ball_diameter_mm, channel_order=args.channel_order, out=args.out)
+                         ball_diameter_mm=args.ball_diameter_mm, channel_order=args.channel_order, out=args.out,
+                         centres=args.centres)
     if args.json:
         print_json(rep)
         return 0
-    print(f"{rep['frames']} {args.frames} frames, profile {rep['profile']}, "
+    where = "annotated centres"
+    reg = rep.get("registration")
+    if reg is not None:
+        fit_rms, scored_rms = reg["rms_offset_px"]
+        moved = scored_rms if scored_rms is not None else fit_rms
+        where = (f"registered centres ({moved:.1f} px RMS from the annotation)" if reg["applied"] else
+                 f"annotated centres (registering them would remove only {100 * reg['explained']:.0f}% of the misfit)")
+    print(f"{rep['frames']} {args.frames} frames, profile {rep['profile']}, {where}, "
           f"{rep['ms_per_frame']:.1f} ms per frame (imprint + render)")
     print(f"{'':10s} {'crop SSIM':>9s} {'PSNR':>6s} {'L1':>5s} | {'contact SSIM':>12s} {'PSNR':>6s} {'L1':>5s} | skill")
     for name, r in (("simulated", rep), ("baseline", rep["baseline"])):

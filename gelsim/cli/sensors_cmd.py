@@ -15,7 +15,9 @@ def register(sub) -> None:
                            "One line per shipped profile: resolution (px), pixel size and field of view (mm),\n"
                            "markers (size and pitch, mm), the fast backend's shading model, and the held-out\n"
                            "realism skill where the profile was fitted to real ball presses (assets/realism.toml:\n"
-                           "fitted on even frames, scored on odd; the background alone scores 0).\n"
+                           "fitted on even frames, scored on odd, the balls where the calibration placed them:\n"
+                           "'registered' where the pack's annotated centres were off; the background alone\n"
+                           "scores 0).\n"
                            "--json adds every measured score and each profile's [unit_variation] ranges."))
     ls.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     ls.set_defaults(handler=run_list)
@@ -62,13 +64,16 @@ def run_list(args) -> int:
         print_json({"sensors": rows})
         return 0
     print(f"{'profile':14s} {'pixels':>9s} {'mm/px':>7s} {'field mm':>11s} {'markers':>13s} {'shading':>7s} "
-          f"{'held-out skill':>15s}  unit variation")
+          f"{'held-out skill':>24s}  unit variation")
     for r in rows:
         mk = r["markers"]
         markers = f"{mk['size_mm']:g} @ {mk['pitch_mm']:g}" if mk else "none"
         rec = r["realism"]
-        skill = f"{rec['skill']:.3f} ({rec['datapack']})" if rec else "not measured"
+        skill = "not measured"
+        if rec:
+            where = ", registered" if rec["centres"] == "registered" else ""
+            skill = f"{rec['skill']:.3f} ({rec['datapack']}{where})"
         print(f"{r['name']:14s} {r['width_px']:>4d}x{r['height_px']:<4d} {r['mm_per_px']:7.4f} "
-              f"{r['field_mm'][0]:5.1f}x{r['field_mm'][1]:<5.1f} {markers:>13s} {r['shading']:>7s} {skill:>15s}  "
+              f"{r['field_mm'][0]:5.1f}x{r['field_mm'][1]:<5.1f} {markers:>13s} {r['shading']:>7s} {skill:>24s}  "
               f"{'yes' if r['unit_variation'] else 'no'}")
     return 0

@@ -47,8 +47,12 @@ channel ``3 * basis + colour``), and optionally ``shadow_dirs_deg`` ``(K,)``,
 ``shadow_tan`` ``(K,)``, ``shadow_rgb`` ``(K, 3)`` DN, ``shadow_sat_mm`` and ``shadow_soft_mm``
 scalars (mm); ``depth_rgb`` ``(3, 3)`` (rows: the basis ``[1, xn, yn]``, DN per mm);
 ``halo_rgb`` ``(3, 3)`` (rows: ``db/dx``, ``db/dy`` in DN per unit slope, ``s`` in DN per mm)
-with scalars ``halo_sigma_mm``, ``halo_base_mm``, ``halo_gate_mm``; and ``gain_dn``: the profile's ``[shading] gain_dn`` when fitted; a profile with
-another gain scales the table's DN by the ratio (as it scales the lights of the other models).
+with scalars ``halo_sigma_mm``, ``halo_base_mm``, ``halo_gate_mm``; ``position_box`` ``(4,)``: the
+range ``[xn_min, xn_max, yn_min, yn_max]`` of the positions the table was fitted at (outside it the
+spatial and depth terms take the value at the box's nearest edge: a linear term fitted where the
+presses were is not extrapolated across the field); and ``gain_dn``: the profile's ``[shading]
+gain_dn`` when fitted; a profile with another gain scales the table's DN by the ratio (as it scales
+the lights of the other models).
 """
 from __future__ import annotations
 
@@ -109,6 +113,12 @@ def load_table(path: str | Path) -> dict:
         out["shadow_sat_mm"] = float(data["shadow_sat_mm"])
         # tables written before soft shadows have hard-edged ones
         out["shadow_soft_mm"] = float(data.get("shadow_soft_mm", 0.0))
+    if "position_box" in data:
+        box = np.asarray(data["position_box"], np.float32)
+        if box.shape != (4,) or not np.all(np.isfinite(box)) or box[0] > box[1] or box[2] > box[3]:
+            raise GelsimError(f"shading table {path}: position_box must be [xn_min, xn_max, yn_min, yn_max]; "
+                              "rerun `gelsim calibrate`")
+        out["position_box"] = box
     if "depth_rgb" in data:
         if data["depth_rgb"].shape != (3, 3):
             raise GelsimError(f"shading table {path}: depth_rgb must be (3, 3); rerun `gelsim calibrate`")
@@ -151,6 +161,12 @@ SHADOW_SCALE = 0.5
 # at 60 x 45, a steep full-frame weave took 13.9 ms at 640x480 and 22.6 ms at 960x720; at
 # 30 x 24, 9.5 and 18.2 ms (one core).
 MOSAIC_TILES = (30, 24)
+# Where the tiles' error bound (the table's largest |T1| and |T2|, DN per unit of field, times half a
+# tile in field units: tile width / image width) exceeds 2 DN, the lookup is exact instead: the
+# 9-channel table looked up per pixel and weighted by the pixel's own [1, xn, yn] (about 3x the
+# lookup's time). The R1.5 table's bound is 1.6 DN (largest difference measured 1.1 DN: tiles); the
+# GelSight Mini's, whose spatial terms are 5-8x larger, 10 DN (tiles showed as seams of up to 20 DN).
+MOSAIC_MAX_ERR_DN = 2.0
 
 
 def _bilinear_shift(src: np.ndarray, pad: int, shape: tuple[int, int], vx: float, vy: float,
@@ -326,13 +342,21 @@ def coarse_factor(mm_per_px: float) -> int:
     return max(1, int(COARSE_GRID_MM / mm_per_px))
 
 
+def clamp_positions(xn: np.ndarray, yn: np.ndarray, box) -> tuple[np.ndarray, np.ndarray]:
+    """Field positions ``xn, yn`` (float32 arrays) clamped into a table's ``position_box`` (None: as given)."""
+    if box is None:
+        return xn, yn
+    return (np.clip(xn, box[0], box[1]).astype(np.float32), np.clip(yn, box[2], box[3]).astype(np.float32))
+
+
 def coarse_grid(depth: np.ndarray, mm_per_px: float, field_mm: tuple[float, float], depth_term: bool,
-                halo: dict | None) -> tuple[np.ndarray, int]:
+                halo: dict | None, box=None) -> tuple[np.ndarray, int]:
     """The depth and halo terms' features on the coarse grid: float32 ``(h', w', k)``, ``k`` = 3 for the
     depth term's ``[d, d xn, d yn]`` if ``depth_term`` and 3 for the halo's ``[g db/dx, g db/dy, s]``
     if ``halo`` (a dict of ``halo_sigma_mm``, ``halo_base_mm``, ``halo_gate_mm``); and the grid's
     factor (:func:`coarse_factor`). ``depth``: the whole frame's imprint, mm; the gel continues past
-    the image (replicated borders), as for the camera blur. See the module docstring."""
+    the image (replicated borders), as for the camera blur; ``box``: the table's ``position_box``
+    (:func:`clamp_positions`). See the module docstring."""
     f = coarse_factor(mm_per_px)
     hg = _grid_heights(depth, f)
     gmm = mm_per_px * f
@@ -343,6 +367,7 @@ def coarse_grid(depth: np.ndarray, mm_per_px: float, field_mm: tuple[float, floa
         h, w = depth.shape
         xn = ((f * (np.arange(ws) + 0.5) - 0.5 - (w - 1) / 2.0) * mm_per_px / (field_mm[0] / 2.0)).astype(np.float32)
         yn = ((f * (np.arange(hs) + 0.5) - 0.5 - (h - 1) / 2.0) * mm_per_px / (field_mm[1] / 2.0)).astype(np.float32)
+        xn, yn = clamp_positions(xn, yn, box)
         feats += [hg, hg * xn[None, :], hg * yn[:, None]]
     if halo is not None:
         b = cv2.GaussianBlur(hg, (0, 0), halo["halo_sigma_mm"] / gmm, borderType=cv2.BORDER_REPLICATE)
@@ -381,6 +406,9 @@ class LutShader(Shader):
         # [shading] gain_dn is the photometric scale of both backends: the table's DN were fitted
         # at the profile's gain_dn of the time (stored with it), so another gain scales them
         gain = profile.shading.gain_dn / t["gain_dn"] if "gain_dn" in t else 1.0
+        # tiles or the exact lookup (MOSAIC_MAX_ERR_DN): decided on the table as fitted, so that a unit's
+        # gains (gelsim.units) or another gain_dn never switch between them
+        self._spatial_dn = (float(np.abs(t["table"][..., 3:6]).max()), float(np.abs(t["table"][..., 6:9]).max()))
         t = adjust_channels(t, profile.shading.channel_gain, profile.shading.channel_rotation_deg)
         self.table = t["table"] * np.float32(gain)
         self.nb = self.table.shape[0]
@@ -397,6 +425,7 @@ class LutShader(Shader):
         self.halo = {k: t[k] for k in ("halo_sigma_mm", "halo_base_mm", "halo_gate_mm")} if "halo_rgb" in t else None
         mix = ([t["depth_rgb"]] if self.depth_term else []) + ([t["halo_rgb"]] if self.halo is not None else [])
         self._coarse_mix = np.concatenate(mix).astype(np.float32) * np.float32(gain) if mix else None
+        self.box = t.get("position_box")
         self._build_mosaic()
         # 1 px for the 3x3 gradient stencil, 1 more so the box's border is flat for sure
         self.margin_px = 2
@@ -414,7 +443,21 @@ class LutShader(Shader):
         cy = np.minimum(np.arange(nty) * th + (th - 1) / 2.0, (np.arange(nty) * th + h - 1) / 2.0)
         xn = ((cx - (w - 1) / 2.0) * mm / (fw / 2.0)).astype(np.float32)
         yn = ((cy - (h - 1) / 2.0) * mm / (fh / 2.0)).astype(np.float32)
+        xn, yn = clamp_positions(xn, yn, self.box)
         t = self.table.reshape(nb, nb, 3, 3)                          # (ny bin, nx bin, basis, colour)
+        half = (nb - 1) / 2.0
+        self._bufs: dict[str, np.ndarray] = {}
+        # the tiles' error bound, DN: a pixel is at most half a tile (in field units) from its tile's centre
+        bound = self._spatial_dn[0] * tw / w + self._spatial_dn[1] * th / h
+        self.exact = bound > MOSAIC_MAX_ERR_DN
+        if self.exact:
+            px, py = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+            self._wts = basis_weights(*clamp_positions(((px - (w - 1) / 2.0) / (w / 2.0)).astype(np.float32),
+                                                       ((py - (h - 1) / 2.0) / (h / 2.0)).astype(np.float32),
+                                                       self.box))
+            self._offx = np.full((h, w), half, np.float32)
+            self._offy = np.full((h, w), half, np.float32)
+            return
         tiles = (t[None, None, :, :, 0] + xn[None, :, None, None, None] * t[None, None, :, :, 1]
                  + yn[:, None, None, None, None] * t[None, None, :, :, 2])   # (ty, tx, ny, nx, 3)
         # one replicated bin after each tile's last, so a bilinear tap never reads the next tile
@@ -423,12 +466,10 @@ class LutShader(Shader):
         tiles = np.concatenate([tiles, tiles[:, :, :, -1:]], axis=3)
         self._mosaic = np.ascontiguousarray(tiles.transpose(0, 2, 1, 3, 4).reshape(nty * stride, ntx * stride, 3),
                                             dtype=np.float32)
-        half = (nb - 1) / 2.0
         self._offx = np.ascontiguousarray(np.broadcast_to(
             ((np.arange(w) // tw) * stride + half).astype(np.float32)[None, :], (h, w)))
         self._offy = np.ascontiguousarray(np.broadcast_to(
             ((np.arange(h) // th) * stride + half).astype(np.float32)[:, None], (h, w)))
-        self._bufs: dict[str, np.ndarray] = {}
 
     def _boxes(self, depth_mm: np.ndarray, margin_px: int, blur_px: float = 0.0):
         """The table's box and the (larger) shadows' box, or None for a flat gel."""
@@ -512,7 +553,7 @@ class LutShader(Shader):
             l0, l1 = max(0, y0 - r), min(h, y1 + r)          # table rows the blur reads
             a, b = max(0, l0 - 1), min(h, l1 + 1)            # depth rows the gradient reads
             lut = self._buffer("band_lut", (l1 - l0, w, 3))
-            self._shade_band(d[a:b], l0 - a, l1 - l0, offx[l0:l1], offy[l0:l1], lut)
+            self._shade_band(d[a:b], l0 - a, l1 - l0, offx[l0:l1], offy[l0:l1], lut, self._band_wts(roi, l0, l1))
             sm = blur(lut, blur_sigma_px, self._buffer("band_blur", lut.shape))
             cv2.add(bgr[y0:y1], sm[y0 - l0:y1 - l0], fr[y0:y1])
         if self.shadow is not None:
@@ -546,7 +587,7 @@ class LutShader(Shader):
         if self._coarse_mix is None:
             return None
         g, f = coarse_grid(depth_mm, self.profile.image.mm_per_px, self.profile.field_mm, self.depth_term,
-                           self.halo)
+                           self.halo, self.box)
         hs, ws, k = g.shape
         small = (g.reshape(-1, k) @ self._coarse_mix).reshape(hs, ws, 3)
         mag = np.abs(small).max(axis=2)
@@ -603,11 +644,21 @@ class LutShader(Shader):
         for y0 in range(0, h, band):
             y1 = min(h, y0 + band)
             a, b = max(0, y0 - 1), min(h, y1 + 1)
-            self._shade_band(d[a:b], y0 - a, y1 - y0, offx[y0:y1], offy[y0:y1], out[y0:y1])
+            self._shade_band(d[a:b], y0 - a, y1 - y0, offx[y0:y1], offy[y0:y1], out[y0:y1],
+                             self._band_wts(roi, y0, y1))
         return out
 
-    def _shade_band(self, d, top, rows, offx, offy, out) -> None:
-        """Rows ``top:top + rows`` of ``d`` (which carries the gradient stencil's extra rows) into ``out``."""
+    def _band_wts(self, roi, r0: int, r1: int):
+        """The exact lookup's basis weights for rows ``r0:r1`` of box ``roi`` (None for the mosaic)."""
+        if not self.exact:
+            return None
+        y0, x0 = roi[0].start or 0, roi[1].start or 0
+        x1 = roi[1].stop if roi[1].stop is not None else self.profile.shape[1]
+        return self._wts[y0 + r0:y0 + r1, 3 * x0:3 * x1]
+
+    def _shade_band(self, d, top, rows, offx, offy, out, wts=None) -> None:
+        """Rows ``top:top + rows`` of ``d`` (which carries the gradient stencil's extra rows) into ``out``;
+        ``wts``: the exact lookup's basis weights for those rows (:meth:`_band_wts`), None for the mosaic."""
         shape = d.shape
         mm = self.profile.image.mm_per_px
         gx, gy, k = (self._buffer(n, shape) for n in ("gx", "gy", "k"))
@@ -626,12 +677,19 @@ class LutShader(Shader):
         cv2.add(gx, offx, gx)
         cv2.multiply(gy, k, gy, scale=-half)
         cv2.add(gy, offy, gy)
-        cv2.remap(self._mosaic, gx, gy, cv2.INTER_LINEAR, out, borderMode=cv2.BORDER_REPLICATE)
+        if wts is None:
+            cv2.remap(self._mosaic, gx, gy, cv2.INTER_LINEAR, out, borderMode=cv2.BORDER_REPLICATE)
+            return
+        r9 = self._buffer("r9", (rows, shape[1], 9))
+        cv2.remap(self._t9, gx, gy, cv2.INTER_LINEAR, r9, borderMode=cv2.BORDER_REPLICATE)
+        r = r9.reshape(rows, 3 * shape[1], 3)
+        cv2.multiply(r, wts, r)
+        np.copyto(out, cv2.transform(r, _SUM3).reshape(rows, shape[1], 3))
 
     def shade_table(self, d: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
         """The table's exact colour change: float32 ``(h, w, 3)`` DN (``xn, yn`` as in :meth:`shade`),
         without the depth term."""
-        return self._shade_table(d, basis_weights(xn, yn))
+        return self._shade_table(d, basis_weights(*clamp_positions(xn, yn, self.box)))
 
     def _shade_table(self, d: np.ndarray, wts: np.ndarray) -> np.ndarray:
         """The table's colour change with :func:`basis_weights` ``wts`` ``(h, 3 w, 3)``."""

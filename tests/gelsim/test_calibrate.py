@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from gelsim.calibrate import calibrate, fit_background, fit_noise
+from gelsim.calibrate import calibrate, fit_background, fit_noise, register_presses
 from gelsim.cli import main
 from gelsim.errors import GelsimError
 from gelsim.optics import Renderer
@@ -71,9 +71,49 @@ def test_calibration_recovers_gel_thickness_noise_and_light_azimuths(fitted):
     assert rep["noise"]["shot_gain"] == pytest.approx(0.0, abs=0.01)
     prof = load_profile(d / "fit.toml")
     assert prof.shading.model == "lut" and prof.gel.thickness_mm == TRUE_THICKNESS_MM
+    # the base profile's unit ranges are carried over with their reasons
+    assert prof.unit_variation == load_profile("vitac").unit_variation
+    assert "led_intensity_frac = 0.15  # " in (d / "fit.toml").read_text()
     for light, az in zip(prof.lights, LIGHT_AZIMUTHS):
         err = (light.azimuth_deg - az + 180.0) % 360.0 - 180.0
         assert abs(err) < 12.0, (light.name, light.azimuth_deg, az)
+
+
+def test_exact_annotations_are_kept(fitted):
+    """The synthetic pack's centres are exact: registration finds little to gain and leaves them."""
+    truth, pack, rep, d = fitted
+    reg = rep["registration"]
+    assert reg["applied"] is False and reg["explained"] < 0.5
+    assert np.all(np.asarray(reg["offsets_px"]) == 0.0)
+
+
+def test_registration_recovers_shifted_centres():
+    """Presses rendered with the shipped GelSight Mini table (a colour wheel that turns within a few
+    pixels of the ball's lowest point) at 160x120, annotated 1-4 px off (zero mean over the fitted
+    frames: registration fixes the presses relative to each other, the annotation's mean stands):
+    registered back to within a pixel; with exact annotations nothing moves."""
+    truth = load_profile("gelsight-mini").with_resolution(160)
+    h, w = truth.shape
+    mm = truth.image.mm_per_px
+    n = 8
+    rng = np.random.default_rng(0)
+    ren = Renderer(truth, seed=0)
+    centers = np.stack([rng.uniform(0.4 * w, 0.6 * w, n), rng.uniform(0.4 * h, 0.6 * h, n)], axis=1)
+    radii = rng.uniform(1.1, 1.8, n) / mm
+    imgs = np.stack([ren.render(ball_depth(truth, c, r, BALL_MM), None, seed=i)
+                     for i, (c, r) in enumerate(zip(centers, radii))])
+    f0 = ren.render(None, None, seed=99)
+    ang = rng.uniform(0, 2 * np.pi, n)
+    shift = np.stack([np.cos(ang), np.sin(ang)], axis=1) * (rng.uniform(0.15, 0.3, n) * radii)[:, None]
+    shift[0::2] -= shift[0::2].mean(axis=0)
+    pack = check_datapack({"f0": f0, "imgs": imgs, "touch_center": centers, "touch_radius": radii}, "exact", "rgb")
+    moved, rep = register_presses(pack, "even", mm, BALL_MM)
+    assert not rep["applied"] and moved is pack
+    off = dataclasses.replace(pack, centers_px=centers + shift)
+    moved, rep = register_presses(off, "even", mm, BALL_MM)
+    assert rep["applied"] and rep["explained"] > 0.5
+    err = np.hypot(*(moved.centers_px - centers).T)
+    assert np.sqrt((shift ** 2).sum(axis=1).mean()) > 2.0 and err.max() < 1.0, err
 
 
 def test_fitted_profile_reproduces_held_out_frames(fitted):
@@ -134,6 +174,7 @@ def _write(tmp_path, data, name="p.npz"):
     (lambda d: d.update(imgs=d["imgs"][:6], touch_center=d["touch_center"][:6], touch_radius=d["touch_radius"][:6]),
      ["--frames", "odd"], "at least 4"),
     (lambda d: d.pop("f0"), [], "lacks f0"),
+    (lambda d: d.update(imgs=np.concatenate([d["imgs"][:-1], d["f0"][None]])), [], "no press there"),
     (lambda d: d.update(touch_radius=d["touch_radius"][:, None]), [], "touch_radius has shape"),
 ])
 def test_calibrate_refuses_bad_packs_in_one_line_and_writes_nothing(fitted, tmp_path, capsys, change, args, match):
@@ -166,7 +207,8 @@ def test_cli_calibrate_reports_its_held_out_score(fitted, tmp_path, capsys):
     assert main(args + ["--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     held = doc["heldout"]
-    assert held["frame_set"] == "odd" and held["frames"] == 6
+    assert held["frame_set"] == "odd" and held["frames"] == 6 and held["centres"] == "annotated"
+    assert doc["registration"]["applied"] is False and "annotated" not in held
     assert held["skill"] > 0.9 and held["baseline"]["skill"] == 0.0
     again = evaluate(load_profile(tmp_path / "c.toml"), pack, "odd", ball_diameter_mm=BALL_MM)
     assert held["skill"] == pytest.approx(again["skill"])
@@ -193,6 +235,12 @@ def test_cli_calibrate_and_realism(fitted, tmp_path, capsys):
     import cv2
     img = cv2.imread(str(out_png))
     assert img.shape == (truth.shape[0], 3 * truth.shape[1], 3)
+    # --centres registered places the balls as calibrate does: here (exact centres) where annotated
+    assert main(["realism", "--profile", str(d / "fit.toml"), "--datapack", str(d / "pack.npz"),
+                 "--mm-per-px", str(truth.image.mm_per_px), "--centres", "registered", "--json"]) == 0
+    reg = json.loads(capsys.readouterr().out)
+    assert reg["centres"] == "annotated" and reg["registration"]["applied"] is False
+    assert reg["skill"] == pytest.approx(doc["skill"])
     assert main(["realism", "--profile", str(d / "fit.toml"), "--datapack", str(d / "pack.npz"),
                  "--mm-per-px", str(truth.image.mm_per_px)]) == 0
     text = capsys.readouterr().out

@@ -12,6 +12,7 @@ import pytest
 
 from gelsim.cli import main
 from gelsim.dataset import load_manifest, verify
+from gelsim.sensor import SENSORS_DIR
 from gelsim.video import count_frames
 
 TINY = ["--fabrics", "3", "--sequences-per-fabric", "2", "--resolution", "96x72", "--fidelity", "fast",
@@ -167,7 +168,6 @@ def test_verify_stats_bad_options_one_line_exit_2(tiny, capsys, args, msg):
     (["--actions", "7:1"], "--actions"),
     (["--frames", "36-25"], "inverted"),
     (["--precontact", "30-40"], "precontact"),
-    (["--units", "2", "--profile", "gelsight-r15"], "unit_variation"),
     (["--units", "-1"], "--units"),
     (["--device", "cpu"], "--backend torch"),
     (["--backend", "torch", "--batch", "0"], "--batch"),
@@ -180,6 +180,17 @@ def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, args, msg):
     assert code == 2
     assert msg in err and err.count("\n") == 1 and "Traceback" not in err
     assert not out.exists()
+
+
+def test_units_need_a_profile_with_unit_ranges(tmp_path, capsys):
+    """--units on a profile without [unit_variation]: one line, exit 2, nothing written."""
+    text = (SENSORS_DIR / "vitac.toml").read_text()
+    plain = tmp_path / "plain.toml"
+    plain.write_text(text.split("[unit_variation]")[0])
+    out = tmp_path / "never"
+    assert main(["generate", "--out", str(out), "--units", "2", "--profile", str(plain)]) == 2
+    err = capsys.readouterr().err
+    assert "unit_variation" in err and err.count("\n") == 1 and not out.exists()
 
 
 def test_foreign_directory_is_refused_and_untouched(tmp_path, capsys):

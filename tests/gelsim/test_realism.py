@@ -258,6 +258,34 @@ def test_lut_shader_flat_is_zero_and_table_slope_is_followed():
     assert np.all(np.abs(out[..., 1]) < 1e-4)
 
 
+def test_lut_spatial_terms_stop_at_the_position_box_and_large_ones_are_looked_up_exactly():
+    """A table whose spatial term is too large for the renderer's tiles (400 DN per unit of field) is
+    looked up per pixel: no steps between tiles, the same as the exact lookup; beyond its
+    position_box the term keeps its value at the box's edge."""
+    prof = load_profile("vitac").with_resolution(160, 120)
+    nb = 41
+    table = np.zeros((nb, nb, 9), np.float32)
+    table[..., 0] = 20.0                          # red: 20 DN at any tilt ...
+    table[..., 3] = 400.0                         # ... plus 400 DN per unit of xn
+    table[nb // 2, nb // 2] = 0.0
+    box = np.array([-0.5, 0.25, -1.0, 1.0], np.float32)
+    sh = LutShader(prof, table={"table": table, "position_box": box})
+    assert sh.exact
+    h, w = prof.shape
+    ramp = np.tile((np.arange(w, dtype=np.float32) * prof.image.mm_per_px * 0.3)[None], (h, 1))
+    roi, out = sh.delta(ramp)
+    red = out[h // 2, 3:-3, 0]
+    xn = (np.arange(w)[3:-3] - (w - 1) / 2.0) / (w / 2.0)
+    np.testing.assert_allclose(red, 20.0 + 400.0 * np.clip(xn, box[0], box[1]), atol=0.05)
+    yy, xx = np.mgrid[0:h, 0:w]
+    exact = sh.shade_table(ramp, ((xx - (w - 1) / 2.0) / (w / 2.0)).astype(np.float32),
+                           ((yy - (h - 1) / 2.0) / (h / 2.0)).astype(np.float32))
+    np.testing.assert_allclose(out[3:-3, 3:-3], exact[3:-3, 3:-3], atol=0.05)
+    # the same table with a small spatial term keeps the tiles
+    table[..., 3] = 4.0
+    assert not LutShader(prof, table={"table": table, "position_box": box}).exact
+
+
 @pytest.mark.slow
 def test_r15_profile_beats_taxim_on_the_odd_frames():
     """The shipped gelsight-r15 profile (fitted on even frames) against taxim 1.4.1 with shadows on the
