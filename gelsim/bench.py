@@ -414,8 +414,10 @@ def run_level(scene: Scene, motion: Motion, profile: SensorProfile, fidelity: Fi
     secs["physics"] = phys_s
     secs["encode"] = enc_s
     # CPU of the process's other threads: OpenGL's (llvmpipe) under pyrender, which the main
-    # thread's clock does not see; the encoder and OpenCV run on the main thread (one core).
-    secs["optics"] += max(0.0, (time.process_time() - c0) - (_stage_clock() - th0))
+    # thread's clock does not see; the encoder and OpenCV run on the main thread (one core). Only
+    # when frames were rendered: idle threads of other libraries (a torch pool) tick otherwise.
+    if "frames" in outputs:
+        secs["optics"] += max(0.0, (time.process_time() - c0) - (_stage_clock() - th0))
     labels = dict(out.labels)
     labels["normal_force_n"] = own.normal_force_n  # this level's own physics
     fr = np.stack(frames) if frames and frames[0] is not None else None
