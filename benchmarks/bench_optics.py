@@ -28,7 +28,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")   # before numpy and OpenCV load t
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from gelsim.cli import print_json, run_script  # noqa: E402
+from gelsim.cli import print_result, run_script  # noqa: E402
 from gelsim.optics import Renderer, available_backends  # noqa: E402
 from gelsim.runtime import configure_worker  # noqa: E402
 from gelsim.sensor import load_profile  # noqa: E402
@@ -170,11 +170,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     info = run(args.reps, args.gl_reps, tuple(args.backends.split(",")), args.profile,
                tuple(args.shadings.split(",")), args.fabric, args.force)
-    if args.json:
-        print_json(info)
-    else:
-        print(markdown(info))
-    return 0
+    return print_result(args.json, info, markdown(info))
 
 
 if __name__ == "__main__":

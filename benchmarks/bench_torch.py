@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_optics import fabric_depth, marker_corners  # noqa: E402
 
-from gelsim.cli import print_json, run_script  # noqa: E402
+from gelsim.cli import print_result, run_script  # noqa: E402
 from gelsim.optics import Renderer  # noqa: E402
 from gelsim.runtime import configure_worker  # noqa: E402
 from gelsim.sensor import load_profile  # noqa: E402
@@ -142,11 +142,7 @@ def main(argv=None) -> int:
         from gelsim.atomic import atomic_write_json
 
         atomic_write_json(args.out, info)
-    if args.json:
-        print_json(info)
-    else:
-        print(markdown(info))
-    return 0
+    return print_result(args.json, info, markdown(info))
 
 
 if __name__ == "__main__":

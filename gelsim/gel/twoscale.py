@@ -393,10 +393,8 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     cv2.max(dwin, cv2.multiply(pen_env, in_macro.view(np.uint8), dtype=cv2.CV_32F), dwin)
     if has_texture:
         t = cv2.subtract(work[w0:w1, v0:v1], env)
-        cloth = math.inf
-        if support is not None:  # the cloth's secant stiffness at the patch's mean pressure, MPa/mm
-            n = max(int(np.count_nonzero(p > 0)), 1)
-            cloth = 1e-3 * support.secant_stiffness_kpa_per_mm(1e3 * force / (area * n))
+        # The cloth's secant stiffness at the patch's mean pressure, MPa/mm (inf: rigid).
+        cloth = 1e-3 * _cloth_stiffness(support, p, force, area)
         g, mean_g, touch = _texture_depth(t, lambda cs: _cell_pressure(p, f, (r0, c0), win, cs), dx, gel,
                                           support, tex, cloth)
         cv2.add(dwin, g, dwin, mask=in_macro.view(np.uint8))
