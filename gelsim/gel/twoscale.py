@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from . import texture_kernels as kernels
 from .johnson import TableLookup, kept_relief
 from .layer import Operator, effective_modulus_mpa, pk_solve
 from .support import FabricSupport
@@ -128,29 +129,48 @@ def _upsample(coarse: np.ndarray, f: int, shape: tuple[int, int]) -> np.ndarray:
     return up[: shape[0], : shape[1]]
 
 
-def _texture_depth(t: np.ndarray, pressure_at, dx: float, gel, support: FabricSupport | None,
-                   texture_mm: float, cloth_mpa_per_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The texture's part of the gel surface for the texture ``t`` (mm, <= 0: depth below the
-    crowns), float32 (ny, nx), under the local mean pressure: ``pressure_at((cols, rows))`` gives it
-    (MPa, float32 (rows, cols)) at the centres of a grid of cells tiling ``t``.
+def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float, gel,
+                   support: FabricSupport | None, texture_mm: float, cloth_mpa_per_mm: float):
+    """The texture's part of the gel surface for the texture ``t = surface - env`` (the object's
+    surface less its crown envelope, mm, float32 (ny, nx); t <= 0 is the depth below the crowns)
+    under the local mean pressure: ``pressure_at((cols, rows), (NY, NX))`` gives it (MPa, float32
+    (rows, cols)) averaged over cells of ``NY / rows`` x ``NX / cols`` pixels tiling the first NY
+    rows and NX columns from the window's corner (NY >= ny, NX >= nx: the cells may overhang it).
     ``cloth_mpa_per_mm``: the cloth's secant stiffness at the patch's mean pressure (inf: rigid).
 
-    Returns (g - mean g: the gel surface's oscillation about its local mean, mm; mean g, mm, <= 0:
-    minus how far the crowns stand below that mean; the texture-scale contact, bool). The macro solve
-    gives the gel's local *mean* displacement (its q = 0 part carries the load), so the texture
-    enters as a zero-mean oscillation about it; the crowns are pushed in -mean g further.
+    Returns (g - mean g: the gel surface's oscillation about its local mean, mm, float32 (ny, nx);
+    mean g at a pixel, ``(y, x) -> mm``, <= 0: minus how far the crowns stand below that mean; the
+    texture-scale contact, bool (ny, nx)). The macro solve gives the gel's local *mean*
+    displacement (its q = 0 part carries the load), so the texture enters as a zero-mean
+    oscillation about it; the crowns are pushed in -mean g further.
 
     Two bands. The texture's own (``t`` blurred over texture / 16) sets p*, the contact and the
     spans through Johnson's map. Finer relief (pores, fibre fuzz, sharp yarn edges) sits on the
     crowns in contact, which carry p / (contact fraction): it prints by Johnson's kept fundamental
     at its own p*, and not at all where the gel spans a valley. Statistics are taken on a grid of
     about texture / 4 cells (the fields they feed vary over a texture period); the map itself runs
-    at full resolution.
+    at full resolution, in the fused passes of :mod:`gelsim.gel.texture_kernels`.
     """
     e_star = effective_modulus_mpa(gel)
+    ny, nx = surface.shape
     fs = max(1, int(texture_mm / (4.0 * dx)))
-    ny, nx = t.shape
-    cs = (-(-nx // fs), -(-ny // fs))
+    # The texture's band varies over at least 8 pixels per period when fs >= 2: its statistics come
+    # from a copy at half the resolution (a quarter of the work; the band is smooth at that scale).
+    half = fs >= 2 and min(ny, nx) >= 8
+    if half:
+        fs -= fs % 2
+    # Cells of exactly fs pixels (2 fs at half resolution; fs even), so that every average over a
+    # cell is over whole pixels (OpenCV's area resize takes its fast path only for whole-number
+    # factors, 0.2 against 1.2 ms at 960x720, and the kernels sum whole cells). So t is padded, its
+    # edge replicated, to whole cells, and the outputs are cropped back: the overhanging cells'
+    # statistics see the edge continued, as the blur does.
+    unit = 2 * fs if half else fs
+    NY, NX = ny + -ny % unit, nx + -nx % unit
+    t = np.empty((NY, NX), np.float32)
+    cv2.subtract(surface, env, t[:ny, :nx])
+    t[:ny, nx:] = t[:ny, nx - 1:nx]
+    t[ny:] = t[ny - 1]
+    cs = (NX // fs, NY // fs)
     # The texture's band: a blur of texture / 16 removes the finer relief and leaves q of a wave at
     # the texture's scale as it was (slope and height scale alike; the height is restored below).
     sigma = texture_mm / (STATS_BLUR_PER_TEXTURE * dx)
@@ -158,31 +178,25 @@ def _texture_depth(t: np.ndarray, pressure_at, dx: float, gel, support: FabricSu
     tq = cv2.GaussianBlur(t, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE) if blurred else t
     k = max(1, int(round(texture_mm / (dx * fs))))
 
-    def shrink(a):
-        return cv2.resize(a, cs, interpolation=cv2.INTER_AREA) if fs > 1 else a
-
     def smooth(small):
         # Two boxes one texture period wide (a triangle): the first zeroes the texture's
         # fundamental, the pair keeps the rest of it below 5% (sinc^2).
         return cv2.blur(cv2.blur(small, (k, k), borderType=cv2.BORDER_REPLICATE), (k, k),
                         borderType=cv2.BORDER_REPLICATE)
 
-    def grow(small):
-        return cv2.resize(small, (nx, ny), interpolation=cv2.INTER_LINEAR) if fs > 1 else small
-
     def band_stats(b, d: float):
         """(variance mm^2, wavenumber 1/mm, anisotropy 0-1, mean mm) of the band ``b`` sampled at
-        ``d`` mm per pixel, on the stats grid."""
+        ``d`` mm per pixel, on the stats grid (``b``'s cells: ``b.shape / cs`` pixels)."""
         # Central differences, each axis alone: a wave of q per axis reads sin(q d) / d there,
         # which is inverted here (exact for a wave at any angle; the Sobel's cross smoothing is not).
-        gx = cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=1, scale=0.5 / d)
-        gy = cv2.Sobel(b, cv2.CV_32F, 0, 1, ksize=1, scale=0.5 / d)
-        m1 = smooth(to_stats(b))
-        var = np.maximum(smooth(to_stats(cv2.multiply(b, b))) - m1 * m1, np.float32(1e-14))
+        f = b.shape[1] // cs[0]
+        mom = smooth(kernels.moment_sums(b, d, f, cs[1], cs[0]) / np.float32(f * f))
+        m1 = mom[..., 0]
+        var = np.maximum(mom[..., 1] - m1 * m1, np.float32(1e-14))
         # (OpenCV's box filter keeps running sums: a mean of squares near zero can come out -1e-6.)
-        gxx = np.maximum(smooth(to_stats(cv2.multiply(gx, gx))), np.float32(0.0))
-        gyy = np.maximum(smooth(to_stats(cv2.multiply(gy, gy))), np.float32(0.0))
-        gxy = smooth(to_stats(cv2.multiply(gx, gy)))
+        gxx = np.maximum(mom[..., 2], np.float32(0.0))
+        gyy = np.maximum(mom[..., 3], np.float32(0.0))
+        gxy = mom[..., 4]
         cx = _sinc_correction(gxx / var, d)
         cy = _sinc_correction(gyy / var, d)
         gxx *= cx
@@ -192,10 +206,7 @@ def _texture_depth(t: np.ndarray, pressure_at, dx: float, gel, support: FabricSu
         # Between one period of the window and the grid's Nyquist wavenumber.
         q = np.clip(np.sqrt(slope2 / var), np.float32(2.0 * math.pi / (k * fs * dx)), np.float32(math.pi / d))
         aniso = np.minimum(np.sqrt((gxx - gyy) ** 2 + 4.0 * gxy * gxy) / np.maximum(slope2, np.float32(1e-14)), 1.0)
-        return var, q, aniso, m1
-
-    def to_stats(a):
-        return cv2.resize(a, cs, interpolation=cv2.INTER_AREA) if a.shape[::-1] != cs else a
+        return var, q, aniso, np.ascontiguousarray(m1)
 
     def share_at(q):
         """The gel's share of relief at wavenumber q: in series with the yarns' Winkler stiffness and
@@ -208,28 +219,26 @@ def _texture_depth(t: np.ndarray, pressure_at, dx: float, gel, support: FabricSu
             comp = comp + 1.0 / (np.float32(cloth_mpa_per_mm) * (1.0 + (q * ell) ** 2))
         return (1.0 / (1.0 + np.float32(e_star / 2.0) * q * comp)).astype(np.float32)
 
-    # The texture's band varies over at least 8 pixels per period when fs >= 2: its statistics come
-    # from a copy at half the resolution (a quarter of the work; the band is smooth at that scale).
-    half = fs >= 2 and min(ny, nx) >= 8
-    tq_s = cv2.resize(tq, ((nx + 1) // 2, (ny + 1) // 2), interpolation=cv2.INTER_AREA) if half else tq
+    tq_s = cv2.resize(tq, (NX // 2, NY // 2), interpolation=cv2.INTER_AREA) if half else tq
     var, q, aniso, m_tq = band_stats(tq_s, 2.0 * dx if half else dx)
-    tf = None
+    share = share_at(q)
+    cell_px = np.float32(fs * fs)
     if blurred:
         # The blur lowered the texture's own band by gain = exp(-(q s)^2 / 2) (s its width, mm):
         # restore its height, and take as finer relief what the restored band leaves of t.
         # (Only the oscillation about the local mean is scaled back: the mean is not blurred.)
         gain = np.exp(-0.5 * (q * np.float32(sigma * dx)) ** 2).astype(np.float32)
         var = var / (gain * gain)
-        mean = grow(m_tq)
-        tq = cv2.add(mean, cv2.divide(cv2.subtract(tq, mean), grow(gain)))
-        tf = cv2.subtract(t, tq)
+        te, tf, tf2_sum = kernels.restore_band(t, tq, kernels.widen(m_tq, NX), kernels.widen(1.0 / gain, NX),
+                                               kernels.widen(share, NX), fs)
+    else:
+        te, tf = kernels.band_share(t, kernels.widen(share, NX), fs), None
     # Crown-to-valley depth from the RMS height: 2 sqrt(2) sigma for a 1-D wave, 4 sigma for the
     # 2-D wave (exact for both, blended by the anisotropy). The deepest valley would count the
     # narrow crevices between yarns, which the gel cannot enter and a finer grid resolves deeper.
     depth = np.sqrt(var) * (np.float32(4.0) - np.float32(4.0 - 2.0 * math.sqrt(2.0)) * aniso)
-    share = share_at(q)
     d_eff = np.maximum(depth * share, np.float32(1e-9))
-    p_small = pressure_at(cs)
+    p_small = pressure_at(cs, (NY, NX))
     s = np.minimum(p_small / (np.float32(e_star / 4.0) * q * d_eff), np.float32(S_MAX))
     tables = TableLookup(s, aniso)
     lam = tables.blend("lam")
@@ -239,22 +248,15 @@ def _texture_depth(t: np.ndarray, pressure_at, dx: float, gel, support: FabricSu
     # surfaces), while the depth at which a given area is reached does: a peaked knit loop has
     # little area near its top, a flat-topped float much. The texture is stationary over a patch,
     # so one bearing curve of depth over the local crown-to-valley depth serves every cell (on a
-    # wave it is exactly the tables' zeta).
-    te = cv2.multiply(tq, grow(share))
-    cut = (_bearing_depth(te, d_eff, fs, phi) * d_eff).astype(np.float32)
-    # g = te where te >= -cut, else -cut + lam (te + cut) = te - (1 - lam) min(te + cut, 0), te = share t
-    below = cv2.min(cv2.add(te, grow(cut)), 0.0)
-    g = cv2.subtract(te, cv2.multiply(grow((1.0 - lam).astype(np.float32)), below))
-    touch = below >= 0.0
+    # wave it is exactly the tables' zeta). te = share * (the texture's band).
+    cut = (_bearing_depth(te[:ny, :nx], d_eff, fs, phi) * d_eff).astype(np.float32)
+    kept_f = cut   # (not read without a finer band)
     if tf is not None:
         # The finer relief on the crowns in contact, at the crowns' pressure p / (contact fraction):
         # its height and mean slope are enough (its p* is taken as the 2-D wave's; tf has no mean).
-        gx = cv2.Sobel(tf, cv2.CV_32F, 1, 0, ksize=1, scale=0.5 / dx)
-        gy = cv2.Sobel(tf, cv2.CV_32F, 0, 1, ksize=1, scale=0.5 / dx)
-        var_f = np.maximum(smooth(shrink(cv2.multiply(tf, tf))), np.float32(1e-14))
-        g2 = cv2.multiply(gx, gx)
-        cv2.accumulateSquare(gy, g2)
-        g2 = np.maximum(smooth(shrink(g2)), np.float32(0.0))
+        var_f = np.maximum(smooth((tf2_sum / cell_px).astype(np.float32)), np.float32(1e-14))
+        g2 = kernels.slope_sums(tf, dx, fs, cs[1], cs[0])
+        g2 = np.maximum(smooth((g2 / cell_px).astype(np.float32)), np.float32(0.0))
         g2 *= _sinc_correction(0.5 * g2 / var_f, dx)
         q_f = np.clip(np.sqrt(g2 / var_f), np.float32(2.0 * math.pi / (k * fs * dx)), np.float32(math.pi / dx))
         share_f = share_at(q_f)
@@ -262,9 +264,14 @@ def _texture_depth(t: np.ndarray, pressure_at, dx: float, gel, support: FabricSu
         s_f = np.minimum(crown_p / (np.float32(e_star / 4.0) * q_f * np.maximum(4.0 * np.sqrt(var_f) * share_f, 1e-9)),
                          np.float32(S_MAX))
         kept_f = (kept_relief(s_f, None) * share_f).astype(np.float32)
-        cv2.add(g, cv2.multiply(tf, grow(kept_f)), g, mask=touch.view(np.uint8))
-    gm = grow(smooth(shrink(g)))
-    return cv2.subtract(g, gm), gm, touch
+    # g = te where te >= -cut (in contact: plus the finer relief it prints), else
+    # -cut + lam (te + cut) = te - (1 - lam) min(te + cut, 0).
+    g, touch, g_sum = kernels.press_texture(te, te if tf is None else tf, kernels.widen(cut, NX),
+                                            kernels.widen((1.0 - lam).astype(np.float32), NX),
+                                            kernels.widen(kept_f, NX), fs, tf is not None)
+    gm = smooth((g_sum / cell_px).astype(np.float32))
+    return kernels.minus_field(g, kernels.widen(gm, NX), fs, ny, nx), \
+        lambda y, x: kernels.field_at(gm, fs, y, x), touch[:ny, :nx]
 
 
 def _bearing_depth(te: np.ndarray, d_eff: np.ndarray, fs: int, phi: np.ndarray) -> np.ndarray:
@@ -392,10 +399,13 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     # penetration the gel takes (outside, the elastic displacement alone).
     cv2.max(dwin, cv2.multiply(pen_env, in_macro.view(np.uint8), dtype=cv2.CV_32F), dwin)
     if has_texture:
-        t = cv2.subtract(work[w0:w1, v0:v1], env)
         # The cloth's secant stiffness at the patch's mean pressure, MPa/mm (inf: rigid).
         cloth = 1e-3 * _cloth_stiffness(support, p, force, area)
-        g, mean_g, touch = _texture_depth(t, lambda cs: _cell_pressure(p, f, (r0, c0), win, cs), dx, gel,
+
+        def pressure_at(cs, shape):
+            return _cell_pressure(p, f, (r0, c0), (w0, w0 + shape[0], v0, v0 + shape[1]), cs)
+
+        g, mean_g, touch = _texture_depth(work[w0:w1, v0:v1], env, pressure_at, dx, gel,
                                           support, tex, cloth)
         cv2.add(dwin, g, dwin, mask=in_macro.view(np.uint8))
         cv2.max(dwin, 0.0, dwin)
@@ -403,7 +413,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         # The approach is the crowns': the macro one plus their sink below the mean surface there.
         if in_macro.any():
             _, _, _, (tx, ty) = cv2.minMaxLoc(env, mask=in_macro.view(np.uint8))
-            delta = float(delta) - float(mean_g[ty, tx])
+            delta = float(delta) - mean_g(ty, tx)
     else:
         mask[w0:w1, v0:v1] = in_macro
     # The pad's travel bounds the depth (the macro solve's 1e-3 tolerance may overshoot it by a hair).
