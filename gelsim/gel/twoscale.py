@@ -389,7 +389,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     if support is not None:
         # On a compliant cloth the gel takes the penetration less the cloth's own compression
         # (the macro solve's closure minus the gel's displacement, in its contact cells).
-        op = _macro_operator(cshape, cm, gel, None, p, force_n, area)
+        op = cloth_operator(cshape, cm, gel, None)
         comp = np.maximum(np.where(p > 0, (hc_of(sol) + delta) - op.gel(p), 0.0), 0.0).astype(np.float32)
         # Carried one cell past the contact cells: the fine patch reaches half a cell beyond them.
         comp = cv2.dilate(comp, np.ones((3, 3), np.uint8))
@@ -400,7 +400,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     cv2.max(dwin, cv2.multiply(pen_env, in_macro.view(np.uint8), dtype=cv2.CV_32F), dwin)
     if has_texture:
         # The cloth's secant stiffness at the patch's mean pressure, MPa/mm (inf: rigid).
-        cloth = 1e-3 * _cloth_stiffness(support, p, force, area)
+        cloth = 1e-3 * cloth_stiffness(support, p, force, area)
 
         def pressure_at(cs, shape):
             return _cell_pressure(p, f, (r0, c0), (w0, w0 + shape[0], v0, v0 + shape[1]), cs)
@@ -469,28 +469,9 @@ def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cell
         warmed = bool(np.any(p > 0))
     if not warmed:
         p = np.sqrt(np.maximum(hc + max(0.05 * vmax, 1e-4), 0.0))
-    bottomed = False
-    delta = 0.0
-    # The cloth's secant stiffness depends on the contact's mean pressure, so the solve is repeated
-    # (at most SUPPORT_PASSES times) until the stiffness it used is within SUPPORT_TOL of the one its
-    # pressure implies; a warm start from the previous frame usually needs one pass.
-    used = None
-    for _ in range(SUPPORT_PASSES):
-        ks = _cloth_stiffness(support, p, force_n, area)
-        if used is not None and abs(ks - used) <= SUPPORT_TOL * used:
-            break
-        op = _macro_operator(cshape, cm, gel, support, p, force_n, area, ks)
-        used = ks
-        if force_n is not None:
-            p, delta, _ = pk_solve(op, hc, area, force=force_n, p0=p, tol=MACRO_TOL, maxit=MACRO_MAXIT)
-            bottomed = delta > vmax
-        if force_n is None or bottomed:
-            bottomed = bottomed or depth_mm > vmax
-            delta = vmax if bottomed else float(depth_mm)
-            p, _, _ = pk_solve(op, hc, area, delta=delta, p0=np.maximum(p, 0) + (hc + delta > 0),
-                               tol=MACRO_TOL, maxit=MACRO_MAXIT)
-        if support is None or not math.isfinite(ks):
-            break
+    # A warm start from the previous frame usually needs one pass of the cloth's fixed point.
+    p, delta, bottomed = solve_on_cloth(hc, cm, gel, support, force_n, depth_mm, p, vmax=vmax, tol=MACRO_TOL,
+                                        maxit=MACRO_MAXIT)
     return _Macro(r0, r1, c0, c1, f, cm, env_c, emax, p, float(delta), bool(bottomed), key, cshape, area)
 
 
@@ -572,26 +553,77 @@ def _cell_means(rows_px: np.ndarray, cells: int) -> np.ndarray:
     return cv2.resize(rows_px, (rows_px.shape[1], cells), interpolation=cv2.INTER_AREA)
 
 
-def _cloth_stiffness(support: FabricSupport | None, p: np.ndarray, force_n: float | None, area: float) -> float:
+def cloth_stiffness(support: FabricSupport | None, p: np.ndarray, force_n: float | None, area: float,
+                     close_px: int = 0) -> float:
     """The cloth's secant stiffness (kPa/mm) at the contact's mean pressure under ``p`` (MPa, the
-    current estimate); inf for a rigid object."""
+    current estimate): the load ``force_n`` (N; None: the load ``p`` carries) over the cells ``p``
+    touches, closed over ``close_px`` cells when >= 2 (the apparent contact of a texture, see
+    elastic.press_elastic); inf for a rigid object."""
     if support is None:
         return math.inf
-    n = int(np.count_nonzero(p > 0))
+    touch = p > 0
+    if close_px >= 2 and touch.any():
+        touch = cv2.morphologyEx(touch.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((close_px, close_px), np.uint8))
+    n = int(np.count_nonzero(touch))
     if force_n is not None:
         pm_kpa = 1e3 * force_n / (area * max(n, 1))
     else:
-        pm_kpa = 1e3 * float(p[p > 0].mean()) if n else 1.0
+        # (the contact cells' mean pressure, spread over the closed contact)
+        pm_kpa = 1e3 * float(p[p > 0].mean()) * (np.count_nonzero(p > 0) / n) if n else 1.0
     return support.secant_stiffness_kpa_per_mm(pm_kpa)
 
 
-def _macro_operator(shape, cm: float, gel, support: FabricSupport | None, p: np.ndarray,
-                    force_n: float | None, area: float, ks: float | None = None) -> Operator:
-    """The coarse grid's layer operator, with the cloth's secant compliance ``ks`` (kPa/mm; default:
-    at the contact's mean pressure under ``p``, the current estimate) and the yarn crowns' Winkler
-    compliance."""
+def solve_on_cloth(h: np.ndarray, d: float, gel, support: FabricSupport | None, force_n: float | None,
+                   depth_mm: float | None, p: np.ndarray, *, vmax: float, tol: float, maxit: int,
+                   close_px: int = 0, dtype=np.float32) -> tuple[np.ndarray, float, bool]:
+    """Frictionless contact of the surface ``h`` (mm, <= 0 below its top, on a grid of ``d`` mm cells)
+    with the layer of ``gel`` on the cloth ``support`` (None: rigid), at the force ``force_n`` (N) or the
+    approach ``depth_mm`` (mm), the travel ``vmax`` (mm) bounding the approach. ``p``: a first estimate of
+    the pressure (MPa); ``tol``, ``maxit``: Polonsky-Keer's; ``close_px``: see :func:`cloth_stiffness`;
+    ``dtype``: the operator's arithmetic. Returns (pressure MPa, approach mm, bottomed). The reference
+    (:mod:`gelsim.gel.elastic`) and the macro solve here both go through this.
+
+    The cloth's secant stiffness depends on the contact's mean pressure, so the solve is repeated
+    (at most SUPPORT_PASSES times) until the stiffness it used is within SUPPORT_TOL of the one its
+    pressure implies. A pass whose force-controlled approach lies beyond the travel is solved again at
+    the travel with the same operator. The invariant of a press that bottoms out: the force it reports
+    (the gel's, at the travel) is at most the request. For one linear operator the contact force grows
+    with the approach, and the request needs an approach beyond the travel, so the force at the travel
+    is below it (up to the solver's tolerance); a re-solve with another stiffness can break that (a
+    stiffer cloth carries more at the same approach: the reference did, 2.03 N for 2 N).
+    A bottomed pass's successor takes the stiffness at the request's mean pressure over the contact at
+    the travel, as a force-controlled pass does: the cloth carries only the gel's share then, but that
+    fixed point feeds itself (a softer cloth carries less at the travel) and is far from converged in
+    SUPPORT_PASSES passes (measured: a 20 mm sphere at 10 N on a soft cloth, 2.1 N after 4 passes, 0.3 N
+    after 30)."""
+    area = d * d
+    bottomed = False
+    delta = 0.0 if depth_mm is None else float(depth_mm)
+    used = None
+    for _ in range(SUPPORT_PASSES):
+        ks = cloth_stiffness(support, p, force_n, area, close_px)
+        if used is not None and abs(ks - used) <= SUPPORT_TOL * used:
+            break
+        op = cloth_operator(h.shape, d, gel, support, ks, dtype)
+        used = ks
+        if force_n is not None:
+            p, delta, _ = pk_solve(op, h, area, force=force_n, p0=p, tol=tol, maxit=maxit)
+            bottomed = delta > vmax
+        if force_n is None or bottomed:
+            bottomed = bottomed or depth_mm > vmax
+            delta = vmax if bottomed else float(depth_mm)
+            p, _, _ = pk_solve(op, h, area, delta=delta, p0=np.maximum(p, 0) + (h + delta > 0), tol=tol, maxit=maxit)
+        if support is None or not math.isfinite(ks):
+            break
+    return p, float(delta), bool(bottomed)
+
+
+def cloth_operator(shape, d: float, gel, support: FabricSupport | None, ks: float = math.inf,
+                   dtype=np.float32) -> Operator:
+    """The layer's operator on a grid of ``d`` mm cells with the cloth ``support`` in series: its secant
+    compliance at the stiffness ``ks`` (kPa/mm, inf: none) and the yarn crowns' Winkler compliance;
+    the bare layer for a rigid object (None)."""
     if support is None:
-        return Operator(shape, cm, gel, dtype=np.float32)
-    ks = _cloth_stiffness(support, p, force_n, area) if ks is None else ks
-    return Operator(shape, cm, gel, 1e3 / ks if math.isfinite(ks) else 0.0, support.shear_length_mm,
-                    winkler_compliance=1.0 / support.yarn_stiffness_mpa_per_mm, dtype=np.float32)
+        return Operator(shape, d, gel, dtype=dtype)
+    return Operator(shape, d, gel, 1e3 / ks if math.isfinite(ks) else 0.0, support.shear_length_mm,
+                    winkler_compliance=1.0 / support.yarn_stiffness_mpa_per_mm, dtype=dtype)
