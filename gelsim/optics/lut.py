@@ -464,8 +464,13 @@ class LutShader(Shader):
         stride = nb + 1
         tiles = np.concatenate([tiles, tiles[:, :, -1:]], axis=2)
         tiles = np.concatenate([tiles, tiles[:, :, :, -1:]], axis=3)
-        self._mosaic = np.ascontiguousarray(tiles.transpose(0, 2, 1, 3, 4).reshape(nty * stride, ntx * stride, 3),
-                                            dtype=np.float32)
+        mosaic = tiles.transpose(0, 2, 1, 3, 4).reshape(nty * stride, ntx * stride, 3)
+        # kept with a fourth, zero channel: OpenCV's remap interpolates 1- and 4-channel float images with
+        # vector instructions and 3-channel ones without (a 960-pixel band: 240 us as 3 channels, 90 as 4,
+        # plus 17 to drop the fourth; same values). _mosaic is the 3-colour view (the torch backend's).
+        self._mosaic4 = np.zeros(mosaic.shape[:2] + (4,), np.float32)
+        self._mosaic4[..., :3] = mosaic
+        self._mosaic = self._mosaic4[..., :3]
         self._offx = np.ascontiguousarray(np.broadcast_to(
             ((np.arange(w) // tw) * stride + half).astype(np.float32)[None, :], (h, w)))
         self._offy = np.ascontiguousarray(np.broadcast_to(
@@ -678,7 +683,9 @@ class LutShader(Shader):
         cv2.multiply(gy, k, gy, scale=-half)
         cv2.add(gy, offy, gy)
         if wts is None:
-            cv2.remap(self._mosaic, gx, gy, cv2.INTER_LINEAR, out, borderMode=cv2.BORDER_REPLICATE)
+            r4 = self._buffer("r4", (rows, shape[1], 4))
+            cv2.remap(self._mosaic4, gx, gy, cv2.INTER_LINEAR, r4, borderMode=cv2.BORDER_REPLICATE)
+            cv2.cvtColor(r4, cv2.COLOR_RGBA2RGB, out)       # drop the zero fourth channel
             return
         r9 = self._buffer("r9", (rows, shape[1], 9))
         cv2.remap(self._t9, gx, gy, cv2.INTER_LINEAR, r9, borderMode=cv2.BORDER_REPLICATE)
