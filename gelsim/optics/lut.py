@@ -595,11 +595,14 @@ class LutShader(Shader):
                            self.halo, self.box)
         hs, ws, k = g.shape
         small = (g.reshape(-1, k) @ self._coarse_mix).reshape(hs, ws, 3)
-        mag = np.abs(small).max(axis=2)
-        if mag.max() < COARSE_SKIP_DN:
+        # |change| with a grid row's colours side by side: numpy's max along an axis of 3 took 0.75 ms
+        # here (a loop per pixel), along rows of 3 ws values and down columns 0.04 ms
+        mag = np.abs(small).reshape(hs, ws * 3)
+        row_max = mag.max(axis=1)
+        if row_max.max() < COARSE_SKIP_DN:
             return None
-        rows = np.flatnonzero(mag.max(axis=1) > 0)
-        cols = np.flatnonzero(mag.max(axis=0) > 0)
+        rows = np.flatnonzero(row_max > 0)
+        cols = np.flatnonzero(mag.max(axis=0).reshape(ws, 3).max(axis=1) > 0)
         r0, r1 = max(0, rows[0] - 1), min(hs, rows[-1] + 2)
         c0, c1 = max(0, cols[0] - 1), min(ws, cols[-1] + 2)
         crop = np.ascontiguousarray(small[r0:r1, c0:c1])
