@@ -107,7 +107,8 @@ def darken_markers(frame: np.ndarray, corners: np.ndarray, darkness: float, blur
             continue
         c0 = i * p
         region = frame[ay:by, ax:bx]
-        np.multiply(region, factor[ay - y0:by - y0, c0 + ax - x0:c0 + bx - x0], out=region)
+        # cv2: half the time of np.multiply on these small strided views, same products
+        cv2.multiply(region, factor[ay - y0:by - y0, c0 + ax - x0:c0 + bx - x0], region)
 
 
 def to_uint8(frame: np.ndarray) -> np.ndarray:
