@@ -545,8 +545,7 @@ class LutShader(Shader):
         roi, big = self._boxes(depth_mm, margin_px, blur_sigma_px)
         if roi is None:
             return False
-        if frame[roi].shape != frame.shape:
-            np.copyto(frame, bg)
+        _copy_outside(frame, bg, roi)            # the bands below write the box
         d = depth_mm[roi]
         h, w = d.shape
         offx, offy = self._offx[roi], self._offy[roi]
@@ -763,6 +762,17 @@ def adjust_channels(t: dict, channel_gain, rotation_deg) -> dict:
                 m[pair[0], c], m[pair[1], c] = _rotate_pair(m[pair[0], c], m[pair[1], c], rots[c])
             t[key] = m * gains[None, :]
     return t
+
+
+def _copy_outside(dst: np.ndarray, src: np.ndarray, box) -> None:
+    """Copy ``src`` into ``dst`` (same shape) everywhere but the box (row and column slices with explicit
+    bounds): the rows above and below it and the columns beside it (a box covers most of a pressed
+    frame, and a copy of a whole 960x720 frame took 0.6 ms)."""
+    (r0, r1), (c0, c1) = (box[0].start, box[0].stop), (box[1].start, box[1].stop)
+    for part in ((slice(0, r0), slice(None)), (slice(r1, None), slice(None)),
+                 (slice(r0, r1), slice(0, c0)), (slice(r0, r1), slice(c1, None))):
+        if dst[part].size:
+            np.copyto(dst[part], src[part])
 
 
 def _union(a, b):
