@@ -541,10 +541,21 @@ class LutShader(Shader):
         ``blur(img, sigma, dst)`` is the camera blur. The table's change is computed, blurred and
         added in bands of rows, each with the blur's radius of extra rows on both sides, so that its
         work arrays stay in the cache: the frame's passes are memory-bound at 960x720. The shadows
-        come blurred by the camera already (see :meth:`parts`)."""
+        (blurred by the camera already, see :meth:`parts`) and the depth and halo terms are computed
+        first, over their boxes, and added to each band's rows right after the table's change (their
+        rows outside the table's box at the end): the same sums, in the same order, as adding them
+        to the whole frame afterwards."""
         roi, big = self._boxes(depth_mm, margin_px, blur_sigma_px)
         if roi is None:
             return False
+        parts = []                               # (box, change) added after the table's change
+        if self.shadow is not None:
+            sh = self._shadows(depth_mm[big], blur_sigma_px)
+            if sh is not None:
+                parts.append((big, sh))
+        halo = self._coarse(depth_mm)
+        if halo is not None:
+            parts.append(halo)
         _copy_outside(frame, bg, roi)            # the bands below write the box
         d = depth_mm[roi]
         h, w = d.shape
@@ -552,6 +563,7 @@ class LutShader(Shader):
         fr, bgr = frame[roi], bg[roi]
         r = int(math.ceil(3.0 * blur_sigma_px)) if blur_sigma_px > 0 else 0
         band = self.BAND_ROWS
+        top = roi[0].start
         for y0 in range(0, h, band):
             y1 = min(h, y0 + band)
             l0, l1 = max(0, y0 - r), min(h, y1 + r)          # table rows the blur reads
@@ -560,15 +572,11 @@ class LutShader(Shader):
             self._shade_band(d[a:b], l0 - a, l1 - l0, offx[l0:l1], offy[l0:l1], lut, self._band_wts(roi, l0, l1))
             sm = blur(lut, blur_sigma_px, self._buffer("band_blur", lut.shape))
             cv2.add(bgr[y0:y1], sm[y0 - l0:y1 - l0], fr[y0:y1])
-        if self.shadow is not None:
-            sh = self._shadows(depth_mm[big], blur_sigma_px)
-            if sh is not None:
-                region = frame[big]
-                cv2.add(region, sh, region)
-        halo = self._coarse(depth_mm)
-        if halo is not None:
-            region = frame[halo[0]]
-            cv2.add(region, halo[1], region)
+            for box, change in parts:                        # while the band's rows are in the cache
+                _add_rows(frame, box, change, top + y0, top + y1)
+        for box, change in parts:                            # their rows above and below the box
+            _add_rows(frame, box, change, 0, top)
+            _add_rows(frame, box, change, roi[0].stop, frame.shape[0])
         return True
 
     def shade(self, d: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
@@ -775,6 +783,14 @@ def _copy_outside(dst: np.ndarray, src: np.ndarray, box) -> None:
                  (slice(r0, r1), slice(0, c0)), (slice(r0, r1), slice(c1, None))):
         if dst[part].size:
             np.copyto(dst[part], src[part])
+
+
+def _add_rows(frame: np.ndarray, box, change: np.ndarray, y0: int, y1: int) -> None:
+    """Add the rows ``y0:y1`` of ``change`` (float32, over ``box`` of ``frame``) to ``frame``, in place."""
+    a, b = max(y0, box[0].start), min(y1, box[0].stop)
+    if a < b:
+        region = frame[a:b, box[1]]
+        cv2.add(region, change[a - box[0].start:b - box[0].start], region)
 
 
 def _union(a, b):
