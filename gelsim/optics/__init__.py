@@ -43,6 +43,7 @@ from .field import background_float, light_maps
 from .shader import Shader, shader_class, work_array
 
 BACKENDS = ("fast", "pyrender", "torch")
+_STALE = object()           # Renderer._frame_flat: the frame buffer holds no flat gel under markers
 
 __all__ = ["Renderer", "render", "available_backends", "BACKENDS", "Shader"]
 
@@ -119,6 +120,8 @@ class Renderer:
         self._shader: Shader = cls(self._fine, maps, device=device) if backend == "torch" else cls(self._fine, maps)
         self._bufs: dict[str, np.ndarray] = {}
         self._last_markers = None          # (corners, frame shape, marker_factors) of the last frame
+        # the marker_factors of the flat gel the "frame" work buffer holds, or _STALE (it holds shading)
+        self._frame_flat = _STALE
         n = profile.noise
         self._noise = NoiseBank(profile.shape, n.read_sigma_dn, n.shot_gain, self.seed)
 
@@ -159,10 +162,16 @@ class Renderer:
                                              gaussian_blur)
         if fresh and corners is None:
             return self._bg
-        if fresh:
+        factors = None if corners is None else self._marker_factors(corners, frame.shape)
+        if not fresh:
+            self._frame_flat = _STALE
+            apply_marker_factors(frame, factors)
+        elif self._frame_flat is not factors:
+            # the flat gel under these markers, unless frame holds it from the last frame already
+            # (the markers at rest before contact: 0.6 ms of copy and 0.3 of markers saved)
             np.copyto(frame, bg)
-        if corners is not None:
-            apply_marker_factors(frame, self._marker_factors(corners, frame.shape))
+            apply_marker_factors(frame, factors)
+            self._frame_flat = factors
         if s > 1:
             frame = cv2.resize(frame, self.profile.shape[::-1], interpolation=cv2.INTER_AREA)
         return frame
