@@ -548,12 +548,13 @@ class LutShader(Shader):
         roi, big = self._boxes(depth_mm, margin_px, blur_sigma_px)
         if roi is None:
             return False
-        parts = []                               # (box, change) added after the table's change
+        # (box, grid, factor) of the changes added after the table's: each band interpolates its own rows
+        parts = []
         if self.shadow is not None:
-            sh = self._shadows(depth_mm[big], blur_sigma_px)
+            sh = self._shadow_grid(depth_mm[big], blur_sigma_px)
             if sh is not None:
-                parts.append((big, sh))
-        halo = self._coarse(depth_mm)
+                parts.append((big, *sh))
+        halo = self._coarse_crop(depth_mm)
         if halo is not None:
             parts.append(halo)
         _copy_outside(frame, bg, roi)            # the bands below write the box
@@ -572,11 +573,11 @@ class LutShader(Shader):
             self._shade_band(d[a:b], l0 - a, l1 - l0, offx[l0:l1], offy[l0:l1], lut, self._band_wts(roi, l0, l1))
             sm = blur(lut, blur_sigma_px, self._buffer("band_blur", lut.shape))
             cv2.add(bgr[y0:y1], sm[y0 - l0:y1 - l0], fr[y0:y1])
-            for box, change in parts:                        # while the band's rows are in the cache
-                _add_rows(frame, box, change, top + y0, top + y1)
-        for box, change in parts:                            # their rows above and below the box
-            _add_rows(frame, box, change, 0, top)
-            _add_rows(frame, box, change, roi[0].stop, frame.shape[0])
+            for part in parts:                               # while the band's rows are in the cache
+                _add_rows(frame, *part, top + y0, top + y1)
+        for part in parts:                                   # their rows above and below the box
+            _add_rows(frame, *part, 0, top)
+            _add_rows(frame, *part, roi[0].stop, frame.shape[0])
         return True
 
     def shade(self, d: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
@@ -596,6 +597,18 @@ class LutShader(Shader):
         the box of grid pixels where they are not zero, grown by one zero pixel, so that the crop's
         bilinear values equal those of the whole grid. Added unblurred: they are smooth at the
         camera blur's scale."""
+        c = self._coarse_crop(depth_mm)
+        if c is None:
+            return None
+        (ys, xs), crop, f = c
+        r, c = crop.shape[:2]
+        up = crop if f == 1 else cv2.resize(crop, (c * f, r * f), interpolation=cv2.INTER_LINEAR)
+        return (ys, xs), np.ascontiguousarray(up[:ys.stop - ys.start, :xs.stop - xs.start])
+
+    def _coarse_crop(self, depth_mm: np.ndarray):
+        """:meth:`_coarse` before its interpolation: ``(roi, crop, f)``, the change on the coarse grid's
+        crop (float32 ``(h', w', 3)`` DN) whose bilinear upsampling by ``f`` gives the change over
+        ``roi`` (cut to its size); None as for :meth:`_coarse`."""
         if self._coarse_mix is None:
             return None
         g, f = coarse_grid(depth_mm, self.profile.image.mm_per_px, self.profile.field_mm, self.depth_term,
@@ -616,8 +629,7 @@ class LutShader(Shader):
         h, w = depth_mm.shape
         y0, x0 = r0 * f, c0 * f
         y1, x1 = min(h, r1 * f), min(w, c1 * f)
-        up = crop if f == 1 else cv2.resize(crop, ((c1 - c0) * f, (r1 - r0) * f), interpolation=cv2.INTER_LINEAR)
-        return (slice(y0, y1), slice(x0, x1)), np.ascontiguousarray(up[:y1 - y0, :x1 - x0])
+        return (slice(y0, y1), slice(x0, x1)), crop, f
 
     def shade_shadows(self, d: np.ndarray) -> np.ndarray:
         """The shadow terms alone: float32 ``(h, w, 3)`` DN (computed at half resolution)."""
@@ -627,6 +639,12 @@ class LutShader(Shader):
     def _shadows(self, d: np.ndarray, extra_blur_px: float) -> np.ndarray | None:
         """Shadow colour change of ``d`` at full resolution, blurred by its penumbra and by
         ``extra_blur_px`` (sigma, full-resolution px): float32 ``(h, w, 3)`` work buffer; None if none."""
+        g = self._shadow_grid(d, extra_blur_px)
+        return None if g is None else _upsample(g[0], g[1], d.shape)
+
+    def _shadow_grid(self, d: np.ndarray, extra_blur_px: float):
+        """:meth:`_shadows` before its interpolation: ``(small, factor)``, the change on the grid
+        (float32 ``(h', w', 3)`` DN) and the grid's factor (:func:`_upsample`); None if none."""
         s = self.shadow
         mm = self.profile.image.mm_per_px
         factor = _grid_factor(SHADOW_SCALE)
@@ -641,7 +659,7 @@ class LutShader(Shader):
         sigma = math.hypot(s["shadow_soft_mm"] / mm, extra_blur_px) / factor
         if sigma > 0.3:     # below a third of a grid pixel a blur changes nothing visible
             small = cv2.GaussianBlur(small, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
-        return _upsample(small, factor, d.shape)
+        return small, factor
 
     # rows per band of the table lookup: its work arrays (slopes, maps) stay in the cache. Each band
     # recomputes the blur's and the gradient's extra rows (6 at a 0.6 px blur); at 960x720, 80-96 rows
@@ -785,12 +803,28 @@ def _copy_outside(dst: np.ndarray, src: np.ndarray, box) -> None:
             np.copyto(dst[part], src[part])
 
 
-def _add_rows(frame: np.ndarray, box, change: np.ndarray, y0: int, y1: int) -> None:
-    """Add the rows ``y0:y1`` of ``change`` (float32, over ``box`` of ``frame``) to ``frame``, in place."""
+def _add_rows(frame: np.ndarray, box, grid: np.ndarray, factor: int, y0: int, y1: int) -> None:
+    """Add the rows ``y0:y1`` (of the frame) of a change over ``box`` of ``frame``, given on a grid: float32
+    ``grid`` ``(h', w', 3)`` upsampled ``factor`` times bilinearly (cv2.resize) and cut to the box."""
     a, b = max(y0, box[0].start), min(y1, box[0].stop)
     if a < b:
         region = frame[a:b, box[1]]
-        cv2.add(region, change[a - box[0].start:b - box[0].start], region)
+        top = box[0].start
+        cv2.add(region, _upsample_rows(grid, factor, a - top, b - top, region.shape[1]), region)
+
+
+def _upsample_rows(grid: np.ndarray, factor: int, a: int, b: int, width: int) -> np.ndarray:
+    """Rows ``a:b`` and columns ``:width`` of ``cv2.resize(grid, (factor w', factor h'), INTER_LINEAR)``
+    (``grid`` float32 ``(h', w', C)``), computed from the grid rows they read only: output row ``y``
+    reads grid rows ``floor((y + 1/2) / factor - 1/2)`` and the next, and OpenCV gives a pixel of an
+    integer upsampling the same value from a crop of the grid as from the whole (its weights depend on
+    the pixel's position modulo the factor: tested), so a band of a frame needs no upsampled copy of
+    the whole grid (an 8 MB array written and read back at 960x720)."""
+    if factor == 1:
+        return grid[a:b, :width]
+    ga, gb = max(0, a // factor - 1), min(grid.shape[0], (b - 1) // factor + 2)
+    up = cv2.resize(grid[ga:gb], (grid.shape[1] * factor, (gb - ga) * factor), interpolation=cv2.INTER_LINEAR)
+    return up[a - ga * factor:b - ga * factor, :width]
 
 
 def _union(a, b):
