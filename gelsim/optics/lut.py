@@ -597,12 +597,12 @@ class LutShader(Shader):
         the box of grid pixels where they are not zero, grown by one zero pixel, so that the crop's
         bilinear values equal those of the whole grid. Added unblurred: they are smooth at the
         camera blur's scale."""
-        c = self._coarse_crop(depth_mm)
-        if c is None:
+        part = self._coarse_crop(depth_mm)
+        if part is None:
             return None
-        (ys, xs), crop, f = c
-        r, c = crop.shape[:2]
-        up = crop if f == 1 else cv2.resize(crop, (c * f, r * f), interpolation=cv2.INTER_LINEAR)
+        (ys, xs), crop, f = part
+        rows, cols = crop.shape[:2]
+        up = crop if f == 1 else cv2.resize(crop, (cols * f, rows * f), interpolation=cv2.INTER_LINEAR)
         return (ys, xs), np.ascontiguousarray(up[:ys.stop - ys.start, :xs.stop - xs.start])
 
     def _coarse_crop(self, depth_mm: np.ndarray):
