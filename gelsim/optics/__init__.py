@@ -37,11 +37,13 @@ import cv2
 import numpy as np
 
 from ..errors import GelsimError, check_choice
-from .composite import NoiseBank, blur_radius_px, darken_markers, gaussian_blur, marker_corners, to_uint8
+from .composite import (NoiseBank, apply_marker_factors, blur_radius_px, gaussian_blur, marker_corners,
+                        marker_factors, to_uint8)
 from .field import background_float, light_maps
 from .shader import Shader, shader_class, work_array
 
 BACKENDS = ("fast", "pyrender", "torch")
+_STALE = object()           # Renderer._frame_flat: the frame buffer holds no flat gel under markers
 
 __all__ = ["Renderer", "render", "available_backends", "BACKENDS", "Shader"]
 
@@ -117,6 +119,9 @@ class Renderer:
         cls = shader_class(backend, profile)
         self._shader: Shader = cls(self._fine, maps, device=device) if backend == "torch" else cls(self._fine, maps)
         self._bufs: dict[str, np.ndarray] = {}
+        self._last_markers = None          # (corners, frame shape, marker_factors) of the last frame
+        # the marker_factors of the flat gel the "frame" work buffer holds, or _STALE (it holds shading)
+        self._frame_flat = _STALE
         n = profile.noise
         self._noise = NoiseBank(profile.shape, n.read_sigma_dn, n.shot_gain, self.seed)
 
@@ -157,13 +162,29 @@ class Renderer:
                                              gaussian_blur)
         if fresh and corners is None:
             return self._bg
-        if fresh:
+        factors = None if corners is None else self._marker_factors(corners, frame.shape)
+        if not fresh:
+            self._frame_flat = _STALE
+            apply_marker_factors(frame, factors)
+        elif self._frame_flat is not factors:
+            # the flat gel under these markers, unless frame holds it from the last frame already
+            # (the markers at rest before contact: 0.6 ms of copy and 0.3 of markers saved)
             np.copyto(frame, bg)
-        if corners is not None:
-            darken_markers(frame, corners, self.profile.markers.darkness, self._blur_fine)
+            apply_marker_factors(frame, factors)
+            self._frame_flat = factors
         if s > 1:
             frame = cv2.resize(frame, self.profile.shape[::-1], interpolation=cv2.INTER_AREA)
         return frame
+
+    def _marker_factors(self, corners: np.ndarray, shape: tuple[int, int, int]):
+        """:func:`~gelsim.optics.composite.marker_factors` of ``corners`` (shading-resolution px), reused
+        while the markers do not move (a sequence's frames before contact: about 1 ms each at 960x720)."""
+        last = self._last_markers
+        if last is not None and last[1] == shape and np.array_equal(last[0], corners):
+            return last[2]
+        factors = marker_factors(corners, self.profile.markers.darkness, self._blur_fine, shape)
+        self._last_markers = (corners.copy(), shape, factors)
+        return factors
 
     def render(self, depth_mm: np.ndarray | None, markers=None, *, seed: int | np.random.Generator = 0,
                noise: bool = True) -> np.ndarray:

@@ -464,8 +464,13 @@ class LutShader(Shader):
         stride = nb + 1
         tiles = np.concatenate([tiles, tiles[:, :, -1:]], axis=2)
         tiles = np.concatenate([tiles, tiles[:, :, :, -1:]], axis=3)
-        self._mosaic = np.ascontiguousarray(tiles.transpose(0, 2, 1, 3, 4).reshape(nty * stride, ntx * stride, 3),
-                                            dtype=np.float32)
+        mosaic = tiles.transpose(0, 2, 1, 3, 4).reshape(nty * stride, ntx * stride, 3)
+        # kept with a fourth, zero channel: OpenCV's remap interpolates 1- and 4-channel float images with
+        # vector instructions and 3-channel ones without (a 960-pixel band: 240 us as 3 channels, 90 as 4,
+        # plus 17 to drop the fourth; same values). _mosaic is the 3-colour view (the torch backend's).
+        self._mosaic4 = np.zeros(mosaic.shape[:2] + (4,), np.float32)
+        self._mosaic4[..., :3] = mosaic
+        self._mosaic = self._mosaic4[..., :3]
         self._offx = np.ascontiguousarray(np.broadcast_to(
             ((np.arange(w) // tw) * stride + half).astype(np.float32)[None, :], (h, w)))
         self._offy = np.ascontiguousarray(np.broadcast_to(
@@ -536,18 +541,30 @@ class LutShader(Shader):
         ``blur(img, sigma, dst)`` is the camera blur. The table's change is computed, blurred and
         added in bands of rows, each with the blur's radius of extra rows on both sides, so that its
         work arrays stay in the cache: the frame's passes are memory-bound at 960x720. The shadows
-        come blurred by the camera already (see :meth:`parts`)."""
+        (blurred by the camera already, see :meth:`parts`) and the depth and halo terms are computed
+        first, over their boxes, and added to each band's rows right after the table's change (their
+        rows outside the table's box at the end): the same sums, in the same order, as adding them
+        to the whole frame afterwards."""
         roi, big = self._boxes(depth_mm, margin_px, blur_sigma_px)
         if roi is None:
             return False
-        if frame[roi].shape != frame.shape:
-            np.copyto(frame, bg)
+        # (box, grid, factor) of the changes added after the table's: each band interpolates its own rows
+        parts = []
+        if self.shadow is not None:
+            sh = self._shadow_grid(depth_mm[big], blur_sigma_px)
+            if sh is not None:
+                parts.append((big, *sh))
+        halo = self._coarse_crop(depth_mm)
+        if halo is not None:
+            parts.append(halo)
+        _copy_outside(frame, bg, roi)            # the bands below write the box
         d = depth_mm[roi]
         h, w = d.shape
         offx, offy = self._offx[roi], self._offy[roi]
         fr, bgr = frame[roi], bg[roi]
         r = int(math.ceil(3.0 * blur_sigma_px)) if blur_sigma_px > 0 else 0
         band = self.BAND_ROWS
+        top = roi[0].start
         for y0 in range(0, h, band):
             y1 = min(h, y0 + band)
             l0, l1 = max(0, y0 - r), min(h, y1 + r)          # table rows the blur reads
@@ -556,15 +573,11 @@ class LutShader(Shader):
             self._shade_band(d[a:b], l0 - a, l1 - l0, offx[l0:l1], offy[l0:l1], lut, self._band_wts(roi, l0, l1))
             sm = blur(lut, blur_sigma_px, self._buffer("band_blur", lut.shape))
             cv2.add(bgr[y0:y1], sm[y0 - l0:y1 - l0], fr[y0:y1])
-        if self.shadow is not None:
-            sh = self._shadows(depth_mm[big], blur_sigma_px)
-            if sh is not None:
-                region = frame[big]
-                cv2.add(region, sh, region)
-        halo = self._coarse(depth_mm)
-        if halo is not None:
-            region = frame[halo[0]]
-            cv2.add(region, halo[1], region)
+            for part in parts:                               # while the band's rows are in the cache
+                _add_rows(frame, *part, top + y0, top + y1)
+        for part in parts:                                   # their rows above and below the box
+            _add_rows(frame, *part, 0, top)
+            _add_rows(frame, *part, roi[0].stop, frame.shape[0])
         return True
 
     def shade(self, d: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
@@ -584,25 +597,39 @@ class LutShader(Shader):
         the box of grid pixels where they are not zero, grown by one zero pixel, so that the crop's
         bilinear values equal those of the whole grid. Added unblurred: they are smooth at the
         camera blur's scale."""
+        part = self._coarse_crop(depth_mm)
+        if part is None:
+            return None
+        (ys, xs), crop, f = part
+        rows, cols = crop.shape[:2]
+        up = crop if f == 1 else cv2.resize(crop, (cols * f, rows * f), interpolation=cv2.INTER_LINEAR)
+        return (ys, xs), np.ascontiguousarray(up[:ys.stop - ys.start, :xs.stop - xs.start])
+
+    def _coarse_crop(self, depth_mm: np.ndarray):
+        """:meth:`_coarse` before its interpolation: ``(roi, crop, f)``, the change on the coarse grid's
+        crop (float32 ``(h', w', 3)`` DN) whose bilinear upsampling by ``f`` gives the change over
+        ``roi`` (cut to its size); None as for :meth:`_coarse`."""
         if self._coarse_mix is None:
             return None
         g, f = coarse_grid(depth_mm, self.profile.image.mm_per_px, self.profile.field_mm, self.depth_term,
                            self.halo, self.box)
         hs, ws, k = g.shape
         small = (g.reshape(-1, k) @ self._coarse_mix).reshape(hs, ws, 3)
-        mag = np.abs(small).max(axis=2)
-        if mag.max() < COARSE_SKIP_DN:
+        # |change| with a grid row's colours side by side: numpy's max along an axis of 3 took 0.75 ms
+        # here (a loop per pixel), along rows of 3 ws values and down columns 0.04 ms
+        mag = np.abs(small).reshape(hs, ws * 3)
+        row_max = mag.max(axis=1)
+        if row_max.max() < COARSE_SKIP_DN:
             return None
-        rows = np.flatnonzero(mag.max(axis=1) > 0)
-        cols = np.flatnonzero(mag.max(axis=0) > 0)
+        rows = np.flatnonzero(row_max > 0)
+        cols = np.flatnonzero(mag.max(axis=0).reshape(ws, 3).max(axis=1) > 0)
         r0, r1 = max(0, rows[0] - 1), min(hs, rows[-1] + 2)
         c0, c1 = max(0, cols[0] - 1), min(ws, cols[-1] + 2)
         crop = np.ascontiguousarray(small[r0:r1, c0:c1])
         h, w = depth_mm.shape
         y0, x0 = r0 * f, c0 * f
         y1, x1 = min(h, r1 * f), min(w, c1 * f)
-        up = crop if f == 1 else cv2.resize(crop, ((c1 - c0) * f, (r1 - r0) * f), interpolation=cv2.INTER_LINEAR)
-        return (slice(y0, y1), slice(x0, x1)), np.ascontiguousarray(up[:y1 - y0, :x1 - x0])
+        return (slice(y0, y1), slice(x0, x1)), crop, f
 
     def shade_shadows(self, d: np.ndarray) -> np.ndarray:
         """The shadow terms alone: float32 ``(h, w, 3)`` DN (computed at half resolution)."""
@@ -612,6 +639,12 @@ class LutShader(Shader):
     def _shadows(self, d: np.ndarray, extra_blur_px: float) -> np.ndarray | None:
         """Shadow colour change of ``d`` at full resolution, blurred by its penumbra and by
         ``extra_blur_px`` (sigma, full-resolution px): float32 ``(h, w, 3)`` work buffer; None if none."""
+        g = self._shadow_grid(d, extra_blur_px)
+        return None if g is None else _upsample(g[0], g[1], d.shape)
+
+    def _shadow_grid(self, d: np.ndarray, extra_blur_px: float):
+        """:meth:`_shadows` before its interpolation: ``(small, factor)``, the change on the grid
+        (float32 ``(h', w', 3)`` DN) and the grid's factor (:func:`_upsample`); None if none."""
         s = self.shadow
         mm = self.profile.image.mm_per_px
         factor = _grid_factor(SHADOW_SCALE)
@@ -626,10 +659,12 @@ class LutShader(Shader):
         sigma = math.hypot(s["shadow_soft_mm"] / mm, extra_blur_px) / factor
         if sigma > 0.3:     # below a third of a grid pixel a blur changes nothing visible
             small = cv2.GaussianBlur(small, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
-        return _upsample(small, factor, d.shape)
+        return small, factor
 
-    # rows per band of the table lookup: its work arrays (slopes, maps) stay in the cache
-    BAND_ROWS = 48
+    # rows per band of the table lookup: its work arrays (slopes, maps) stay in the cache. Each band
+    # recomputes the blur's and the gradient's extra rows (6 at a 0.6 px blur); at 960x720, 80-96 rows
+    # took 0.15 ms per frame less than 48 and than 120-240 (replay of dataset frames, 2-core machine)
+    BAND_ROWS = 96
 
     def _shade_mosaic(self, depth_mm: np.ndarray, roi) -> np.ndarray:
         """The table's colour change over ``roi`` from the tile mosaic: float32 ``(h, w, 3)`` DN work buffer.
@@ -678,7 +713,9 @@ class LutShader(Shader):
         cv2.multiply(gy, k, gy, scale=-half)
         cv2.add(gy, offy, gy)
         if wts is None:
-            cv2.remap(self._mosaic, gx, gy, cv2.INTER_LINEAR, out, borderMode=cv2.BORDER_REPLICATE)
+            r4 = self._buffer("r4", (rows, shape[1], 4))
+            cv2.remap(self._mosaic4, gx, gy, cv2.INTER_LINEAR, r4, borderMode=cv2.BORDER_REPLICATE)
+            cv2.cvtColor(r4, cv2.COLOR_RGBA2RGB, out)       # drop the zero fourth channel
             return
         r9 = self._buffer("r9", (rows, shape[1], 9))
         cv2.remap(self._t9, gx, gy, cv2.INTER_LINEAR, r9, borderMode=cv2.BORDER_REPLICATE)
@@ -753,6 +790,41 @@ def adjust_channels(t: dict, channel_gain, rotation_deg) -> dict:
                 m[pair[0], c], m[pair[1], c] = _rotate_pair(m[pair[0], c], m[pair[1], c], rots[c])
             t[key] = m * gains[None, :]
     return t
+
+
+def _copy_outside(dst: np.ndarray, src: np.ndarray, box) -> None:
+    """Copy ``src`` into ``dst`` (same shape) everywhere but the box (row and column slices with explicit
+    bounds): the rows above and below it and the columns beside it (a box covers most of a pressed
+    frame, and a copy of a whole 960x720 frame took 0.6 ms)."""
+    (r0, r1), (c0, c1) = (box[0].start, box[0].stop), (box[1].start, box[1].stop)
+    for part in ((slice(0, r0), slice(None)), (slice(r1, None), slice(None)),
+                 (slice(r0, r1), slice(0, c0)), (slice(r0, r1), slice(c1, None))):
+        if dst[part].size:
+            np.copyto(dst[part], src[part])
+
+
+def _add_rows(frame: np.ndarray, box, grid: np.ndarray, factor: int, y0: int, y1: int) -> None:
+    """Add the rows ``y0:y1`` (of the frame) of a change over ``box`` of ``frame``, given on a grid: float32
+    ``grid`` ``(h', w', 3)`` upsampled ``factor`` times bilinearly (cv2.resize) and cut to the box."""
+    a, b = max(y0, box[0].start), min(y1, box[0].stop)
+    if a < b:
+        region = frame[a:b, box[1]]
+        top = box[0].start
+        cv2.add(region, _upsample_rows(grid, factor, a - top, b - top, region.shape[1]), region)
+
+
+def _upsample_rows(grid: np.ndarray, factor: int, a: int, b: int, width: int) -> np.ndarray:
+    """Rows ``a:b`` and columns ``:width`` of ``cv2.resize(grid, (factor w', factor h'), INTER_LINEAR)``
+    (``grid`` float32 ``(h', w', C)``), computed from the grid rows they read only: output row ``y``
+    reads grid rows ``floor((y + 1/2) / factor - 1/2)`` and the next, and OpenCV gives a pixel of an
+    integer upsampling the same value from a crop of the grid as from the whole (its weights depend on
+    the pixel's position modulo the factor: tested), so a band of a frame needs no upsampled copy of
+    the whole grid (an 8 MB array written and read back at 960x720)."""
+    if factor == 1:
+        return grid[a:b, :width]
+    ga, gb = max(0, a // factor - 1), min(grid.shape[0], (b - 1) // factor + 2)
+    up = cv2.resize(grid[ga:gb], (grid.shape[1] * factor, (gb - ga) * factor), interpolation=cv2.INTER_LINEAR)
+    return up[a - ga * factor:b - ga * factor, :width]
 
 
 def _union(a, b):

@@ -582,3 +582,37 @@ def test_constant_sigma_noise_pass_matches_general_formula(small):
     got = r._noise.apply(frame, 9).astype(np.float64)
     assert (got == 0).any() and (got == 255).any()
     assert np.abs(got - expect).max() <= 1.0 and (got != expect).mean() < 1e-3
+
+
+@pytest.mark.parametrize("factor", [1, 2, 5, 6])
+def test_upsampled_rows_equal_those_of_the_whole_upsampling(factor):
+    """A band's rows of a grid's bilinear upsampling, computed from the grid rows they read only, are
+    bit for bit those of the whole grid's (the renderer adds the shadows and the depth and halo terms
+    band by band this way)."""
+    from gelsim.optics.lut import _upsample_rows
+
+    rng = np.random.default_rng(factor)
+    for hs, ws in ((23, 31), (120, 160)):
+        grid = (rng.standard_normal((hs, ws, 3)) * 20).astype(np.float32)
+        whole = cv2.resize(grid, (ws * factor, hs * factor), interpolation=cv2.INTER_LINEAR) if factor > 1 else grid
+        width = ws * factor - factor // 2                          # a box cut short of the last grid column
+        for a in sorted({0, 1, factor, 7, hs * factor // 2, hs * factor - 3}):
+            for b in {a + 1, a + 7, a + 96, hs * factor}:
+                b = min(b, hs * factor)
+                if b > a:
+                    np.testing.assert_array_equal(_upsample_rows(grid, factor, a, b, width), whole[a:b, :width])
+
+
+def test_a_renderer_reused_over_a_sequence_draws_what_fresh_ones_draw(small):
+    """The markers' factors and the flat gel under markers at rest are reused between frames; a sequence
+    rendered with one Renderer equals each frame rendered by a fresh one, bit for bit."""
+    corners, _ = marker_grid(small)
+    moved = corners + np.float32(0.4)
+    d = sphere_dent(small, 2.5, 0.3)
+    frames = [(None, corners), (None, corners), (d, corners), (None, corners), (None, moved), (None, moved),
+              (d, None), (None, corners), (np.zeros_like(d), corners), (None, corners)]
+    r = Renderer(small, seed=3)
+    for i, (depth, mk) in enumerate(frames):
+        fresh = Renderer(small, seed=3)
+        np.testing.assert_array_equal(r.render_float(depth, mk), fresh.render_float(depth, mk))
+        np.testing.assert_array_equal(r.render(depth, mk, seed=i), fresh.render(depth, mk, seed=i))
