@@ -438,10 +438,9 @@ def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cell
     cm = dx * f
     cshape = (-(-(r1 - r0) // f), -(-(c1 - c0) // f))
     if tex is not None:
-        # Crown envelope on the coarse grid: each cell's highest point (block centres of a
-        # dilation), then a closing over the texture's scale fills the valleys between crowns.
-        pooled = cv2.resize(cv2.dilate(region, np.ones((f, f), np.uint8)), (cshape[1], cshape[0]),
-                            interpolation=cv2.INTER_NEAREST) if f > 1 else region
+        # Crown envelope on the coarse grid: each cell's highest point (see _crown_pool), then a
+        # closing over the texture's scale fills the valleys between crowns.
+        pooled = _crown_pool(region, f, cshape) if f > 1 else region
         env_c = _closing(pooled, int(math.ceil(ENVELOPE_SPAN * tex / cm)) | 1).astype(np.float64)
     else:
         env_c = _pool(region, f)
@@ -482,6 +481,51 @@ def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cell
         if support is None or not math.isfinite(ks):
             break
     return _Macro(r0, r1, c0, c1, f, cm, env_c, emax, p, float(delta), bool(bottomed), key, cshape, area)
+
+
+def _crown_pool(region: np.ndarray, f: int, cshape: tuple[int, int]) -> np.ndarray:
+    """The highest point (mm, float32 ``cshape``) of ``region`` (mm, float32) near each of the coarse
+    grid's ``f``-pixel blocks: its dilation by an f x f square read by OpenCV's nearest-neighbour
+    resize to ``cshape``, which reads pixel c = floor(i n / m) for cell i (n pixels, m cells along
+    an axis): the maximum over pixels [c - f // 2, c - f // 2 + f).
+
+    When the grid divides the region evenly (the usual whole-frame box: 720 x 960 px in 48 x 64
+    blocks of 15) c = f i, the windows tile the axis, and the maxima are two strided reductions
+    (0.2 ms instead of the full-resolution dilation's 0.9 ms, measured on a loaded 2-core machine);
+    other grids take the dilation. Same values either way (a maximum is exact).
+
+    (Cell i's window then starts f // 2 pixels before its block, half a block off the block the rest
+    of the model gives it, and the last f // 2 rows and columns fall in no window. Kept as it was:
+    centring it moves the envelope by half a cell, a change to the model's results.)
+    """
+    rows = _tiled_window_max(region, f, cshape[0])
+    # (The second pass runs on the transposed, contiguous rows: a reduction over strided columns is
+    # 3 times slower.)
+    cols = None if rows is None else _tiled_window_max(np.ascontiguousarray(rows.T), f, cshape[1])
+    if cols is None:
+        return cv2.resize(cv2.dilate(region, np.ones((f, f), np.uint8)), (cshape[1], cshape[0]),
+                          interpolation=cv2.INTER_NEAREST)
+    return np.ascontiguousarray(cols.T)
+
+
+def _tiled_window_max(a: np.ndarray, f: int, m: int) -> np.ndarray | None:
+    """For each of m cells along the first axis of ``a`` (n rows): the maximum over rows
+    [c - f // 2, c - f // 2 + f) (clipped to the axis) about the row c that OpenCV's INTER_NEAREST
+    resize from n to m samples, floor(i * (1 / (m / n))) (its double arithmetic); (m, ...) like ``a``.
+    None unless c = f i for every cell (the windows then tile the axis: strided reductions)."""
+    n = a.shape[0]
+    c = np.minimum(np.floor(np.arange(m) * (1.0 / (m / n))), n - 1)
+    if not np.array_equal(c, f * np.arange(m)):
+        return None
+    lo = f - f // 2  # cell 0's window is [-(f // 2), lo); cell i's starts at lo + (i - 1) f
+    out = np.empty((m,) + a.shape[1:], a.dtype)
+    out[0] = a[:min(lo, n)].max(axis=0)
+    full = min(m - 1, (n - lo) // f)  # cells 1..full end within the axis
+    if full > 0:
+        out[1:full + 1] = a[lo:lo + full * f].reshape((full, f) + a.shape[1:]).max(axis=1)
+    for i in range(full + 1, m):  # (at most the last cell, clipped at the axis' end)
+        out[i] = a[lo + (i - 1) * f:].max(axis=0)
+    return out
 
 
 def _resample_pressure(warm: MacroState, origin: tuple[int, int], f: int, cshape: tuple[int, int]) -> np.ndarray:
