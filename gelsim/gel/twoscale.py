@@ -27,6 +27,7 @@ Cost at 960x720 over a whole-pad fabric press: see docs/imprint.md.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -337,11 +338,10 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     r1, c1 = sol.r1, sol.c1
     force = float(p.sum() * area)
     state = MacroState(key, p, (r0, c0), f, (ny, nx))
-    depth = np.zeros((ny, nx), np.float32)
     mask = np.zeros((ny, nx), bool)
     cb = bbox(p > 0)
     if cb is None:
-        return depth, mask, delta, force, bottomed, state
+        return np.zeros((ny, nx), np.float32), mask, delta, force, bottomed, state
     # 3. The gel's displacement around the patch: one more convolution over a padded window.
     # (Clipped to the frame: the gel beyond it is not imaged.)
     mc = max(ny, nx) if full else int(math.ceil(OUT_MARGIN_THICKNESS * gel.thickness_mm / cm))
@@ -352,9 +352,13 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     big[q0 - lo_q:q1 - lo_q, s0 - lo_s:s1 - lo_s] = p[q0:q1, s0:s1]
     u_f = _upsample(np.maximum(Operator(big.shape, cm, gel).gel(big), 0.0), f, (big.shape[0] * f, big.shape[1] * f))
     fr0, fc0 = r0 + lo_q * f, c0 + lo_s * f
-    a0, a1 = max(0, fr0), min(ny, fr0 + u_f.shape[0])
-    b0, b1 = max(0, fc0), min(nx, fc0 + u_f.shape[1])
-    depth[a0:a1, b0:b1] = u_f[a0 - fr0:a1 - fr0, b0 - fc0:b1 - fc0]
+    if (fr0, fc0) == (0, 0) and u_f.shape == (ny, nx):
+        depth = u_f  # the window is the frame (a whole-pad cloth): no copy
+    else:
+        depth = np.zeros((ny, nx), np.float32)
+        a0, a1 = max(0, fr0), min(ny, fr0 + u_f.shape[0])
+        b0, b1 = max(0, fc0), min(nx, fc0 + u_f.shape[1])
+        depth[a0:a1, b0:b1] = u_f[a0 - fr0:a1 - fr0, b0 - fc0:b1 - fc0]
     # 4. The contact window (coarse contact, one block of margin), at full resolution.
     w0, w1 = r0 + max(0, cb[0] - 1) * f, min(r1, r0 + (cb[1] + 1) * f)
     v0, v1 = c0 + max(0, cb[2] - 1) * f, min(c1, c0 + (cb[3] + 1) * f)
@@ -377,7 +381,6 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     # the first out of it: the contact indicator, interpolated and cut at one half, puts it at the
     # midpoint, unbiased (the interpolated pressure's footprint overstates it by half a cell, the
     # interpolated gap understates it by as much).
-    pen_env = cv2.subtract(env, float(emax - delta))
     win = (w0, w1, v0, v1)
     if support is not None:
         # On a compliant cloth the gel takes the penetration less the cloth's own compression
@@ -386,7 +389,10 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         comp = np.maximum(np.where(p > 0, (hc_of(sol) + delta) - op.gel(p), 0.0), 0.0).astype(np.float32)
         # Carried one cell past the contact cells: the fine patch reaches half a cell beyond them.
         comp = cv2.dilate(comp, np.ones((3, 3), np.uint8))
-        pen_env = cv2.subtract(pen_env, _window_pressure(comp, f, (r0, c0), win))
+        # env - (emax - delta) - comp in one pass over the window.
+        pen_env = cv2.addWeighted(env, 1.0, _window_pressure(comp, f, (r0, c0), win), -1.0, -float(emax - delta))
+    else:
+        pen_env = cv2.subtract(env, float(emax - delta))
     in_macro = _window_pressure((p > 0).astype(np.float32), f, (r0, c0), win) >= 0.5
     # The gel cannot pass through the object: inside the patch it lies at least as deep as the
     # penetration the gel takes (outside, the elastic displacement alone).
@@ -397,9 +403,10 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         cloth = 1e-3 * _cloth_stiffness(support, p, force, area)
         g, mean_g, touch = _texture_depth(t, lambda cs: _cell_pressure(p, f, (r0, c0), win, cs), dx, gel,
                                           support, tex, cloth)
-        cv2.add(dwin, g, dwin, mask=in_macro.view(np.uint8))
+        # (OpenCV's masked accumulate adds in place; its masked add went through a temporary.)
+        cv2.accumulate(g, dwin, mask=in_macro.view(np.uint8))
         cv2.max(dwin, 0.0, dwin)
-        mask[w0:w1, v0:v1] = in_macro & touch
+        np.logical_and(in_macro, touch, out=mask[w0:w1, v0:v1])
         # The approach is the crowns': the macro one plus their sink below the mean surface there.
         if in_macro.any():
             _, _, _, (tx, ty) = cv2.minMaxLoc(env, mask=in_macro.view(np.uint8))
@@ -407,7 +414,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     else:
         mask[w0:w1, v0:v1] = in_macro
     # The pad's travel bounds the depth (the macro solve's 1e-3 tolerance may overshoot it by a hair).
-    np.minimum(depth, np.float32(vmax), out=depth)
+    cv2.min(depth, float(vmax), dst=depth)  # (OpenCV's: a third of numpy's time here)
     return depth, mask, float(delta), force, bottomed, state
 
 
@@ -557,7 +564,8 @@ def _widen(a: int, b: int, n: int, least: int = MIN_WINDOW_PX) -> tuple[int, int
 
 def _window_pressure(p: np.ndarray, f: int, origin, win) -> np.ndarray:
     """A coarse field (e.g. the pressure, MPa) bilinearly at the fine pixels of ``win`` = (w0, w1,
-    v0, v1), given the coarse grid's origin (fine pixel of its first block) and block size ``f``."""
+    v0, v1), given the coarse grid's origin (fine pixel of its first block) and block size ``f``:
+    float32 (w1 - w0, v1 - v0), a view into a slightly larger array."""
     r0, c0 = origin
     w0, w1, v0, v1 = win
     # Coarse cells covering the window, one extra on each side for the interpolation (zero beyond
@@ -570,7 +578,7 @@ def _window_pressure(p: np.ndarray, f: int, origin, win) -> np.ndarray:
         sub[a0 - i0:a1 - i0, b0 - j0:b1 - j0] = p[a0:a1, b0:b1]
     up = _upsample(sub, f, ((i1 - i0) * f, (j1 - j0) * f))
     oy, ox = w0 - (r0 + i0 * f), v0 - (c0 + j0 * f)
-    return np.ascontiguousarray(up[oy:oy + w1 - w0, ox:ox + v1 - v0])
+    return up[oy:oy + w1 - w0, ox:ox + v1 - v0]  # (a view: OpenCV reads strided rows, no copy needed)
 
 
 def _cell_pressure(p: np.ndarray, f: int, origin, win, cs: tuple[int, int]) -> np.ndarray:
@@ -581,11 +589,22 @@ def _cell_pressure(p: np.ndarray, f: int, origin, win, cs: tuple[int, int]) -> n
     small matrices (the fine field and its average took two full-window passes)."""
     w0, w1, v0, v1 = win
     cols, rows = cs
-    ry = _cell_means(_bilinear_matrix((np.arange(w0, w1) + 0.5 - origin[0]) / f - 0.5, p.shape[0]), rows)
-    rx = _cell_means(_bilinear_matrix((np.arange(v0, v1) + 0.5 - origin[1]) / f - 0.5, p.shape[1]), cols)
+    ry = _axis_cell_matrix(w0, w1, origin[0], f, p.shape[0], rows)
+    rx = _axis_cell_matrix(v0, v1, origin[1], f, p.shape[1], cols)
     # OpenCV's product runs on the worker's one thread (numpy's BLAS may start threads at these sizes).
     out = cv2.gemm(cv2.gemm(ry, p.astype(np.float32), 1.0, None, 0.0), rx, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
     return np.maximum(out, np.float32(0.0))
+
+
+@functools.lru_cache(maxsize=16)
+def _axis_cell_matrix(a: int, b: int, origin: int, f: int, n: int, cells: int) -> np.ndarray:
+    """float32 (cells, n), read-only: the n coarse samples (``f``-pixel blocks from fine pixel ``origin``)
+    read bilinearly at fine pixels a..b-1, then averaged over ``cells`` cells tiling them (one axis of
+    :func:`_cell_pressure`). Cached: a sequence's frames mostly share their window (a whole-pad cloth:
+    72% of the captured frames' axes), and building it took about half of _cell_pressure's time."""
+    m = _cell_means(_bilinear_matrix((np.arange(a, b) + 0.5 - origin) / f - 0.5, n), cells)
+    m.flags.writeable = False
+    return m
 
 
 def _bilinear_matrix(coords: np.ndarray, n: int) -> np.ndarray:
