@@ -171,20 +171,18 @@ class Operator:
         self.dtype = np.dtype(dtype).type
         self.ny, self.nx = shape
         self.s = (padded_size(self.ny), padded_size(self.nx))
-        kf_gel = kernel_spectrum(self.ny, self.nx, float(dx), float(gel.young_modulus_mpa),
-                                 float(gel.poisson_ratio), float(gel.thickness_mm))
-        kf = kf_gel
+        # Single precision: half the DFT cost, ample for a 1e-3 solve.
+        self.kf_gel = _scaled(kernel_spectrum, (self.ny, self.nx, float(dx), float(gel.young_modulus_mpa),
+                                                float(gel.poisson_ratio), float(gel.thickness_mm)), self.dtype)
+        self.kf = self.kf_gel
         cs = float(support_compliance)
         self.pasternak = bool(cs) and support_len is not None and support_len > 0.5 * dx
         if self.pasternak:  # (the packed spectra are linear in the coefficients: they add)
-            kf = kf + cs * support_kernel_spectrum(self.ny, self.nx, float(dx), float(support_len))
+            sup = _scaled(support_kernel_spectrum, (self.ny, self.nx, float(dx), float(support_len)), self.dtype)
+            self.kf = cv2.scaleAdd(sup, cs, self.kf)
         self.cw = float(winkler_compliance) + (0.0 if self.pasternak else cs)
         if self.cw:
-            kf = kf + self.cw * _unit_spectrum(*self.s)
-        scale = 1.0 / (self.s[0] * self.s[1])
-        # Single precision: half the DFT cost, ample for a 1e-3 solve.
-        self.kf_gel = (kf_gel * scale).astype(self.dtype, copy=False)
-        self.kf = (kf * scale).astype(self.dtype, copy=False)
+            self.kf = cv2.scaleAdd(_scaled(_unit_spectrum, self.s, self.dtype), self.cw, self.kf)
         self._buf = np.zeros(self.s, self.dtype)  # zero beyond the (ny, nx) corner, which each call fills
         self._kc = None
 
@@ -229,6 +227,14 @@ def _unit_spectrum(my: int, mx: int) -> np.ndarray:
     e = np.zeros((my, mx))
     e[0, 0] = 1.0
     return _readonly(cv2.dft(e))
+
+
+@functools.lru_cache(maxsize=64)
+def _scaled(spectrum, args: tuple, dtype) -> np.ndarray:
+    """``spectrum(*args)`` times the unscaled inverse DFT's 1 / (my mx), in ``dtype``, read-only (cached:
+    an operator is built a few times per frame, each for a new cloth stiffness on the same grid)."""
+    s = spectrum(*args)
+    return _readonly((s * (1.0 / s.size)).astype(dtype))
 
 
 def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = None,
