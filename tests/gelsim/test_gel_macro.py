@@ -130,3 +130,14 @@ def test_macro_state_from_before_the_bottomed_flag_still_warm_starts():
     again = press(indenters.sphere(10.0, prof), prof, get_fidelity("balanced"), force_n=0.3,
                   warm=dataclasses.replace(im, state=old))
     assert again.indentation_mm == pytest.approx(im.indentation_mm, rel=5e-3)
+
+
+@pytest.mark.parametrize("shape, k", [((720, 960), 61), ((90, 70), 41), ((33, 120), 8), ((5, 3), 13), ((2, 40), 7)])
+def test_closing_by_window_doubling_is_opencvs(monkeypatch, shape, k):
+    import gelsim.gel.twoscale as ts
+
+    monkeypatch.setattr(ts, "CLOSING_DOUBLING_MIN", 2)
+    img = np.random.default_rng(k).standard_normal(shape).astype(np.float32)
+    for a in (img, img[1:, 2:]):
+        want = cv2.morphologyEx(a, cv2.MORPH_CLOSE, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        np.testing.assert_array_equal(ts._closing(a, k), want)
