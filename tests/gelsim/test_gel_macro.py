@@ -141,3 +141,24 @@ def test_closing_by_window_doubling_is_opencvs(monkeypatch, shape, k):
     for a in (img, img[1:, 2:]):
         want = cv2.morphologyEx(a, cv2.MORPH_CLOSE, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
         np.testing.assert_array_equal(ts._closing(a, k), want)
+
+
+def test_a_loading_sequence_predicts_its_contact_and_keeps_the_cloths_fixed_point():
+    # Frame by frame under a growing force, each macro state records its force and the contact's growth
+    # exponent (d ln cells / d ln force); the next frame's first cloth stiffness is taken at the contact
+    # this predicts. The imprints stay within the stiffness tolerance of cold (unpredicted) solves.
+    prof = load_profile("vitac").with_resolution(320, 240)
+    fid = get_fidelity("balanced")
+    cloth = FabricSupport(0.5, 0.4, 2.0)
+    prot = indenters.sphere(60.0, prof)
+    warm = None
+    for i, force in enumerate((0.3, 0.6, 1.0, 1.5)):
+        im = press(prot, prof, fid, force_n=force, support=cloth, warm=warm)
+        cold = press(prot, prof, fid, force_n=force, support=cloth)
+        assert im.state.force_n == pytest.approx(force, rel=1e-6)
+        assert (im.state.contact_exponent is None) == (i == 0)
+        if i:
+            assert 0.0 <= im.state.contact_exponent <= 1.0
+        assert im.indentation_mm == pytest.approx(cold.indentation_mm, rel=0.03)
+        assert im.contact_area_mm2 == pytest.approx(cold.contact_area_mm2, rel=0.03)
+        warm = im
