@@ -23,8 +23,8 @@ from __future__ import annotations
 import functools
 import math
 
+import cv2
 import numpy as np
-from scipy import fft as sfft
 from scipy.special import j0, j1, k0, k1
 
 # Polonsky-Keer stopping rule: relative change of the pressure field (L1) per iteration.
@@ -32,6 +32,11 @@ from scipy.special import j0, j1, k0, k1
 # contact radius of 10 px).
 CG_TOL = 1e-6
 CG_MAXIT = 2000
+# pk_solve carries the displacement from step to step when a step's projection changes at most this
+# many cells (a shifted kernel each, about 3 us on a 48x64 grid, against 70 us for a convolution)...
+SPARSE_MAX_CELLS = 16
+# ...and recomputes it every this many steps (float32 rounding builds up at ~1e-7 relative a step).
+SPARSE_REFRESH = 8
 # Beyond x = q h = 20 the layer factor S differs from 1 by < 1e-15 (terms in exp(-2x)).
 _S_X_MAX = 20.0
 
@@ -83,48 +88,65 @@ def _love(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return t1 + t2
 
 
-def _wrapped(n: int, dx: float) -> np.ndarray:
-    """Signed offsets (mm) of the zero-padded length-2n grid, wrapped so that the circular
-    convolution of a length-n signal is linear."""
-    i = np.arange(2 * n)
-    return np.where(i < n, i, i - 2 * n) * dx
+def _wrapped(n: int, m: int, dx: float) -> np.ndarray:
+    """Signed offsets (mm) of a zero-padded length-m grid (m >= 2n - 1), wrapped so that the circular
+    convolution of a length-n signal is linear: entries 0..n-1 are offsets 0..n-1, the last n - 1
+    entries offsets -(n-1)..-1 (the ones between are never reached)."""
+    i = np.arange(m)
+    return np.where(i < n, i, i - m) * dx
+
+
+def padded_size(n: int) -> int:
+    """Length of the zero-padded grid for a linear convolution of length-n signals: 2n as before
+    when that is a fast DFT size (n = 48, 64: 96, 128), else OpenCV's next fast size >= 2n - 1
+    (its DFT of a length with a large prime factor costs O(n p))."""
+    m = 2 * n
+    return m if cv2.getOptimalDFTSize(m) == m else cv2.getOptimalDFTSize(2 * n - 1)
 
 
 @functools.lru_cache(maxsize=32)
-def kernel_fft(ny: int, nx: int, dx: float, e_mpa: float, nu: float, h_mm: float) -> np.ndarray:
-    """rfft2 of the layer's influence coefficients on the zero-padded (2 ny, 2 nx) grid.
+def kernel_spectrum(ny: int, nx: int, dx: float, e_mpa: float, nu: float, h_mm: float) -> np.ndarray:
+    """OpenCV's packed real DFT (CCS, float64, read-only) of the layer's influence coefficients on the
+    zero-padded (padded_size(ny), padded_size(nx)) grid.
 
     Coefficient (i, j): displacement (mm) at a pixel centre per unit pressure (MPa) on a
     pixel (i, j) away.
     """
-    y, x = np.meshgrid(_wrapped(ny, dx), _wrapped(nx, dx), indexing="ij")
+    y, x = np.meshgrid(_wrapped(ny, padded_size(ny), dx), _wrapped(nx, padded_size(nx), dx), indexing="ij")
     a = dx / 2
     love = _love(x + a, y + a) - _love(x + a, y - a) - _love(x - a, y + a) + _love(x - a, y - a)
     r = np.hypot(x, y)
-    rho_needed = float(r.max() / h_mm) * 1.01 + 1e-6
+    # The farthest offset the (2 ny, 2 nx) grid held (n dx each way), whatever the padded size: the
+    # same correction table, so the same coefficients.
+    rho_needed = float(np.hypot(ny * dx, nx * dx) / h_mm) * 1.01 + 1e-6
     rho_max = 2.0 ** math.ceil(math.log2(max(rho_needed, 1.0)))  # fewer distinct tables to cache
     rho, g = _layer_correction_table(nu, rho_max)
     corr = np.interp(r / h_mm, rho, g) / h_mm * dx * dx
     k = (1.0 - nu * nu) / (math.pi * e_mpa) * (love + corr)
-    return sfft.rfft2(k, workers=1)
+    return _readonly(cv2.dft(k))
 
 
 @functools.lru_cache(maxsize=32)
-def support_kernel_fft(ny: int, nx: int, dx: float, ell: float) -> np.ndarray:
-    """rfft2 of a Pasternak support's influence coefficients (unit stiffness) on the
-    zero-padded (2 ny, 2 nx) grid.
+def support_kernel_spectrum(ny: int, nx: int, dx: float, ell: float) -> np.ndarray:
+    """OpenCV's packed real DFT (CCS, float64, read-only) of a Pasternak support's influence
+    coefficients (unit stiffness) on the zero-padded (padded_size(ny), padded_size(nx)) grid.
 
     A Pasternak layer ``k w - k l^2 lap w = p`` spreads a point load as
     ``K0(r / l) / (2 pi l^2 k)``: coefficient (i, j) is that at the pixel offset times the
     pixel area, the centre the exact integral over a disk of one pixel's area
     (``1 - X K1(X)``, X = dx / (sqrt(pi) l)). The weights sum to 1 (uniform load: w = p / k).
     """
-    r = np.hypot(_wrapped(ny, dx)[:, None], _wrapped(nx, dx)[None, :])
+    r = np.hypot(_wrapped(ny, padded_size(ny), dx)[:, None], _wrapped(nx, padded_size(nx), dx)[None, :])
     with np.errstate(divide="ignore", invalid="ignore"):
         c = np.where(r > 0, k0(np.maximum(r, 1e-300) / ell), 0.0) * (dx * dx / (2 * math.pi * ell * ell))
     x0 = dx / (math.sqrt(math.pi) * ell)
     c[0, 0] = 1.0 - x0 * float(k1(x0))
-    return sfft.rfft2(c, workers=1)
+    return _readonly(cv2.dft(c))
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False  # shared through the caches
+    return a
 
 
 class Operator:
@@ -135,37 +157,84 @@ class Operator:
     point by point); ``winkler_compliance`` (mm/MPa) adds a pointwise layer on top of it (a
     fabric's yarn crowns). ``__call__`` gives the total closure (gel + supports), :meth:`gel`
     the gel's displacement alone.
+
+    The convolutions are zero-padded real DFTs by OpenCV (packed CCS spectra, ``cv2.mulSpectrums``):
+    on the macro solve's 48x64 grid one costs about 2/3 of scipy.fft's rfft2/irfft2 pair, most of
+    the difference being the latter's per-call Python overhead. The pointwise (Winkler) compliance
+    is a kernel of weight ``cw`` at offset 0, a constant ``cw`` in the spectrum, and the inverse
+    DFT's 1 / (my mx) is folded into the spectra too: a call is one DFT, one product, one inverse.
+    An operator keeps its zero-padded input buffer: use one from one thread at a time.
     """
 
     def __init__(self, shape: tuple[int, int], dx: float, gel, support_compliance: float = 0.0,
                  support_len: float | None = None, winkler_compliance: float = 0.0, dtype=np.float64):
         self.dtype = np.dtype(dtype).type
         self.ny, self.nx = shape
-        self.s = (2 * self.ny, 2 * self.nx)
-        self.kf_gel = kernel_fft(self.ny, self.nx, float(dx), float(gel.young_modulus_mpa),
-                                 float(gel.poisson_ratio), float(gel.thickness_mm))
+        self.s = (padded_size(self.ny), padded_size(self.nx))
+        # Single precision: half the DFT cost, ample for a 1e-3 solve.
+        self.kf_gel = _scaled(kernel_spectrum, (self.ny, self.nx, float(dx), float(gel.young_modulus_mpa),
+                                                float(gel.poisson_ratio), float(gel.thickness_mm)), self.dtype)
         self.kf = self.kf_gel
         cs = float(support_compliance)
         self.pasternak = bool(cs) and support_len is not None and support_len > 0.5 * dx
-        if self.pasternak:
-            self.kf = self.kf + cs * support_kernel_fft(self.ny, self.nx, float(dx), float(support_len))
+        if self.pasternak:  # (the packed spectra are linear in the coefficients: they add)
+            sup = _scaled(support_kernel_spectrum, (self.ny, self.nx, float(dx), float(support_len)), self.dtype)
+            self.kf = cv2.scaleAdd(sup, cs, self.kf)
         self.cw = float(winkler_compliance) + (0.0 if self.pasternak else cs)
-        if self.dtype is np.float32:  # single precision: half the FFT cost, ample for a 1e-3 solve
-            self.kf = self.kf.astype(np.complex64)
-            self.kf_gel = self.kf_gel.astype(np.complex64)
+        if self.cw:
+            self.kf = cv2.scaleAdd(_scaled(_unit_spectrum, self.s, self.dtype), self.cw, self.kf)
+        self._buf = np.zeros(self.s, self.dtype)  # zero beyond the (ny, nx) corner, which each call fills
+        self._kc = None
 
     def _conv(self, p: np.ndarray, kf: np.ndarray) -> np.ndarray:
-        u = sfft.irfft2(sfft.rfft2(p.astype(self.dtype, copy=False), s=self.s, workers=1) * kf, s=self.s,
-                        workers=1)
-        return u[: self.ny, : self.nx]
+        """(ny, nx) view of a fresh (padded) array: K * p for the scaled packed spectrum ``kf``."""
+        self._buf[: self.ny, : self.nx] = p
+        spec = cv2.dft(self._buf)
+        cv2.mulSpectrums(spec, kf, 0, spec)
+        return cv2.idft(spec, flags=cv2.DFT_REAL_OUTPUT)[: self.ny, : self.nx]
 
     def gel(self, p: np.ndarray) -> np.ndarray:
         """The gel's surface displacement (mm) under ``p`` (MPa)."""
         return self._conv(p, self.kf_gel)
 
     def __call__(self, p: np.ndarray) -> np.ndarray:
-        u = self._conv(p, self.kf)
-        return u + self.dtype(self.cw) * p if self.cw else u
+        """The total closure (mm: gel, cloth and yarn crowns) under ``p`` (MPa)."""
+        return self._conv(p, self.kf)
+
+    def add_impulses(self, u: np.ndarray, flat: np.ndarray, values: np.ndarray) -> None:
+        """u += K * c in place (u: (ny, nx) contiguous, of the operator's dtype) for a pressure c that
+        is ``values`` (MPa) at the flat indices ``flat`` of the (ny, nx) grid and 0 elsewhere: one
+        shifted copy of the total kernel per cell, cheaper than a convolution for a few cells."""
+        kc = self._centred_kernel()
+        for j, v in zip(flat.tolist(), values.tolist()):
+            a, b = divmod(j, self.nx)
+            cv2.scaleAdd(kc[self.ny - 1 - a:2 * self.ny - 1 - a, self.nx - 1 - b:2 * self.nx - 1 - b], v, u, dst=u)
+
+    def _centred_kernel(self) -> np.ndarray:
+        """The total kernel's coefficients at offsets -(n-1)..n-1 on each axis, (2 ny - 1, 2 nx - 1),
+        offset 0 at (ny - 1, nx - 1); built on first use from the spectrum."""
+        if self._kc is None:
+            k = cv2.idft(self.kf, flags=cv2.DFT_REAL_OUTPUT)  # (kf carries the 1 / (my mx))
+            iy = np.arange(-(self.ny - 1), self.ny) % self.s[0]
+            ix = np.arange(-(self.nx - 1), self.nx) % self.s[1]
+            self._kc = np.ascontiguousarray(k[iy][:, ix])
+        return self._kc
+
+
+@functools.lru_cache(maxsize=32)
+def _unit_spectrum(my: int, mx: int) -> np.ndarray:
+    """Packed DFT of a unit impulse at offset 0 on an (my, mx) grid (1 in every real part), float64."""
+    e = np.zeros((my, mx))
+    e[0, 0] = 1.0
+    return _readonly(cv2.dft(e))
+
+
+@functools.lru_cache(maxsize=64)
+def _scaled(spectrum, args: tuple, dtype) -> np.ndarray:
+    """``spectrum(*args)`` times the unscaled inverse DFT's 1 / (my mx), in ``dtype``, read-only (cached:
+    an operator is built a few times per frame, each for a new cloth stiffness on the same grid)."""
+    s = spectrum(*args)
+    return _readonly((s * (1.0 / s.size)).astype(dtype))
 
 
 def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = None,
@@ -178,7 +247,8 @@ def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = 
     p0: initial pressure (MPa), e.g. the previous frame's. tol: stop when the pressure
     changes by less than this (relative L1) in one iteration.
     Returns (pressure MPa, approach mm, iterations). The arithmetic is in the operator's dtype
-    (the contact set enters as a 0/1 mask: no gathers on the small grids this runs on).
+    (the contact set enters as a 0/1 mask: no gathers on the small grids this runs on). With an
+    :class:`Operator` most steps take one convolution, not two (see SPARSE_MAX_CELLS).
     """
     dtype = getattr(op, "dtype", np.float64)
     force_ctl = force is not None
@@ -191,25 +261,37 @@ def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = 
             s = float(p.sum())
         p *= dtype(force / (area * s))
     t = np.zeros_like(p)
+    icf = np.empty_like(p)
+    p_old = np.empty_like(p)
     g_old, d = 1.0, 0.0
+    # u = op(p), carried from step to step: the step moves p by -tau t (whose image r = op(t) is
+    # computed anyway) plus a correction on the cells it clips or adds, which ``add_impulses`` maps
+    # when they are few; a full convolution otherwise, and every SPARSE_REFRESH steps (rounding).
+    impulses = getattr(op, "add_impulses", None)
+    u = None
+    carried = 0
     it = 0
     for it in range(1, maxit + 1):
-        icf = (p > 0).astype(dtype)
+        np.greater(p, 0, out=icf)
         n = float(icf.sum())
         if n == 0:
             break
-        g = op(p) - target
+        if u is None:
+            u = np.ascontiguousarray(op(p))
+            carried = 0
+        g = u - target
         if force_ctl:
             g -= dtype(float(np.vdot(g, icf)) / n)
         gm = g * icf
         gg = float(np.vdot(gm, gm))
-        t *= icf
-        t *= dtype(d * gg / g_old)
-        t += gm
+        if d:  # t = gm + beta t, t kept on the contact
+            t *= icf
+            t = cv2.scaleAdd(t, d * gg / g_old, gm)
+        else:  # (a restart: beta = 0)
+            t = gm.copy()
         g_old = max(gg, 1e-300)
-        r = op(t)
-        if force_ctl:
-            r -= dtype(float(np.vdot(r, icf)) / n)
+        r_op = op(t)
+        r = r_op - dtype(float(np.vdot(r_op, icf)) / n) if force_ctl else r_op
         den = float(np.vdot(r, t))  # t is zero off the contact
         if den == 0.0:
             # The current contact set is solved exactly (e.g. a few cells of equal height with the
@@ -222,33 +304,48 @@ def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = 
                 p *= dtype(force / (area * float(p.sum())))
             t[:] = 0
             d = 0.0
+            u = None
             continue
         tau = float(np.vdot(g, t)) / den
-        p_old = p.copy()
-        p -= dtype(tau) * t
-        np.maximum(p, 0, out=p)
-        iol = (p == 0) & (g < 0)
+        np.copyto(p_old, p)
+        w = cv2.scaleAdd(t, -tau, p)  # the step, before the projection
+        np.maximum(w, 0, out=p)
+        iol = g < 0
+        iol &= p == 0
         grew = bool(iol.any())
         if grew:
             d = 0.0
-            p -= np.where(iol, dtype(tau) * g, dtype(0))
+            np.subtract(p, dtype(tau) * g, out=p, where=iol)
         else:
             d = 1.0
+        if impulses is not None and carried < SPARSE_REFRESH:
+            corr = p - w
+            flat = np.flatnonzero(corr)
+            if flat.size <= SPARSE_MAX_CELLS:
+                cv2.scaleAdd(r_op, -tau, u, dst=u)
+                impulses(u, flat, corr.ravel()[flat])
+                carried += 1
+            else:
+                u = None
+        else:
+            u = None
         s = float(p.sum())
         if s <= 0:
             break
         if force_ctl:
             p *= dtype(force / (area * s))
+            if u is not None:
+                u *= dtype(force / (area * s))
             s = force / area
         # Converged when the pressure no longer moves and no overlapping cell joined the contact this
         # step (a small first contact set can otherwise "converge" after one tiny step).
-        if float(np.abs(p - p_old).sum()) / s < tol and not grew:
+        if cv2.norm(p, p_old, cv2.NORM_L1) / s < tol and not grew:
             break
     p = p.astype(np.float64)
     if force_ctl:
         ic = p > 0
-        u = op(p) - h
-        delta = float(u[ic].mean()) if ic.any() else 0.0
+        gap = (op(p) if u is None else u) - h
+        delta = float(gap[ic].mean()) if ic.any() else 0.0
     return p, float(delta), it
 
 

@@ -27,6 +27,7 @@ Cost at 960x720 over a whole-pad fabric press: see docs/imprint.md.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -78,6 +79,16 @@ TEXTURE_CAP_THICKNESS = 1.0
 # frames whose contact grows or shrinks, and always one pass by up to 73%.
 SUPPORT_PASSES = 4
 SUPPORT_TOL = 0.02
+# The contact's growth with the force (see _solve_macro) is measured between frames whose forces differ
+# by at least this (log ratio, ~10%): over smaller steps the motion changes the contact more.
+EXPONENT_MIN_STEP = 0.1
+# The exponent taken before one is measured (a sequence's second frame): the captured sequences' second
+# frames measured 0.23-0.51 (a Hertz contact on a half-space: 2/3; the cloth and the pad's edge flatten it).
+CONTACT_EXPONENT = 0.3
+# The crown envelope's closing (a weave's largest pitch, up to 61 px at 960x720) switches from OpenCV's
+# morphology to window doubling (see _running_extreme) at this kernel size: on a 960x720 window they
+# cost the same near k = 40; at k = 61, 3.2 ms against 4.8-5.8 ms (measured on the loaded 2-core machine).
+CLOSING_DOUBLING_MIN = 41
 
 
 @dataclass(frozen=True)
@@ -85,12 +96,18 @@ class MacroState:
     """A frame's macro solution: warm-starts the next frame's, and gives the mean pressure field.
 
     pressure_mpa: the coarse grid's pressure, MPa; its block (i, j) covers work pixels
-    ``origin + (i, j) * block`` to ``+ block``; ``work_shape`` the work grid's (ny, nx)."""
+    ``origin + (i, j) * block`` to ``+ block``; ``work_shape`` the work grid's (ny, nx);
+    ``bottomed``: the pad was at its travel (the next frame tries that first); ``force_n`` the force it
+    carried, N, and ``contact_exponent`` d ln(contact cells) / d ln(force) measured from its own warm
+    start (None: not known), which predict the next frame's contact (see _solve_macro)."""
     key: tuple
     pressure_mpa: np.ndarray
     origin: tuple[int, int] = (0, 0)
     block: int = 1
     work_shape: tuple[int, int] = (0, 0)
+    bottomed: bool = False
+    force_n: float = 0.0
+    contact_exponent: float | None = None
 
     def pressure_field(self) -> np.ndarray:
         """The local mean pressure on the work grid (MPa, float32; bilinear between block centres)."""
@@ -101,10 +118,37 @@ class MacroState:
 
 def _closing(img: np.ndarray, k: int) -> np.ndarray:
     """Grey closing with a k x k square, replicated borders. (OpenCV splits a square kernel into
-    row and column passes itself: one call is 25-45% faster than four 1-D passes, same result.)"""
+    row and column passes itself: one call is 25-45% faster than four 1-D passes, same result.)
+    From CLOSING_DOUBLING_MIN on, the passes double their window instead (same result)."""
     if k < 2:
         return img
+    if k >= CLOSING_DOUBLING_MIN:
+        d = _running_extreme(img, k, cv2.max, 0)
+        d = _running_extreme(d, k, cv2.max, 1)
+        d = _running_extreme(d, k, cv2.min, 0)
+        return _running_extreme(d, k, cv2.min, 1)
     return cv2.morphologyEx(img, cv2.MORPH_CLOSE, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
+
+
+def _running_extreme(img: np.ndarray, k: int, op, axis: int) -> np.ndarray:
+    """``op`` (cv2.max or cv2.min) over k pixels along ``axis`` of 2-D ``img``, as OpenCV's dilation or
+    erosion by a 1 x k line does it (anchor at k // 2, replicated borders): the window is grown by
+    doubling, max(m[i], m[i + w]) of the width-w one, then two overlapping windows make k: log2(k) + 1
+    passes, whatever k (OpenCV's morphology takes about k / 8 SIMD operations per pixel)."""
+    a = k // 2
+    n = img.shape[axis]
+    pad = (a, k - 1 - a, 0, 0) if axis == 0 else (0, 0, a, k - 1 - a)
+    m = cv2.copyMakeBorder(img, *pad, cv2.BORDER_REPLICATE)
+
+    def part(arr, start, length):
+        return arr[start:start + length] if axis == 0 else arr[:, start:start + length]
+
+    w, size = 1, n + k - 1  # m[i] holds the extreme over padded pixels [i, i + w)
+    while 2 * w <= k:
+        size -= w
+        m = op(part(m, 0, size), part(m, w, size))
+        w *= 2
+    return op(part(m, 0, n), part(m, k - w, n))
 
 
 def _pool(img: np.ndarray, f: int) -> np.ndarray:
@@ -343,12 +387,11 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         sol.area)
     r1, c1 = sol.r1, sol.c1
     force = float(p.sum() * area)
-    state = MacroState(key, p, (r0, c0), f, (ny, nx))
-    depth = np.zeros((ny, nx), np.float32)
+    state = MacroState(key, p, (r0, c0), f, (ny, nx), bottomed, force, sol.contact_exponent)
     mask = np.zeros((ny, nx), bool)
     cb = bbox(p > 0)
     if cb is None:
-        return depth, mask, delta, force, bottomed, state
+        return np.zeros((ny, nx), np.float32), mask, delta, force, bottomed, state
     # 3. The gel's displacement around the patch: one more convolution over a padded window.
     # (Clipped to the frame: the gel beyond it is not imaged.)
     mc = max(ny, nx) if full else int(math.ceil(OUT_MARGIN_THICKNESS * gel.thickness_mm / cm))
@@ -359,9 +402,13 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     big[q0 - lo_q:q1 - lo_q, s0 - lo_s:s1 - lo_s] = p[q0:q1, s0:s1]
     u_f = _upsample(np.maximum(Operator(big.shape, cm, gel).gel(big), 0.0), f, (big.shape[0] * f, big.shape[1] * f))
     fr0, fc0 = r0 + lo_q * f, c0 + lo_s * f
-    a0, a1 = max(0, fr0), min(ny, fr0 + u_f.shape[0])
-    b0, b1 = max(0, fc0), min(nx, fc0 + u_f.shape[1])
-    depth[a0:a1, b0:b1] = u_f[a0 - fr0:a1 - fr0, b0 - fc0:b1 - fc0]
+    if (fr0, fc0) == (0, 0) and u_f.shape == (ny, nx):
+        depth = u_f  # the window is the frame (a whole-pad cloth): no copy
+    else:
+        depth = np.zeros((ny, nx), np.float32)
+        a0, a1 = max(0, fr0), min(ny, fr0 + u_f.shape[0])
+        b0, b1 = max(0, fc0), min(nx, fc0 + u_f.shape[1])
+        depth[a0:a1, b0:b1] = u_f[a0 - fr0:a1 - fr0, b0 - fc0:b1 - fc0]
     # 4. The contact window (coarse contact, one block of margin), at full resolution.
     w0, w1 = r0 + max(0, cb[0] - 1) * f, min(r1, r0 + (cb[1] + 1) * f)
     v0, v1 = c0 + max(0, cb[2] - 1) * f, min(c1, c0 + (cb[3] + 1) * f)
@@ -384,7 +431,6 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     # the first out of it: the contact indicator, interpolated and cut at one half, puts it at the
     # midpoint, unbiased (the interpolated pressure's footprint overstates it by half a cell, the
     # interpolated gap understates it by as much).
-    pen_env = cv2.subtract(env, float(emax - delta))
     win = (w0, w1, v0, v1)
     if support is not None:
         # On a compliant cloth the gel takes the penetration less the cloth's own compression
@@ -393,7 +439,10 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         comp = np.maximum(np.where(p > 0, (hc_of(sol) + delta) - op.gel(p), 0.0), 0.0).astype(np.float32)
         # Carried one cell past the contact cells: the fine patch reaches half a cell beyond them.
         comp = cv2.dilate(comp, np.ones((3, 3), np.uint8))
-        pen_env = cv2.subtract(pen_env, _window_pressure(comp, f, (r0, c0), win))
+        # env - (emax - delta) - comp in one pass over the window.
+        pen_env = cv2.addWeighted(env, 1.0, _window_pressure(comp, f, (r0, c0), win), -1.0, -float(emax - delta))
+    else:
+        pen_env = cv2.subtract(env, float(emax - delta))
     in_macro = _window_pressure((p > 0).astype(np.float32), f, (r0, c0), win) >= 0.5
     # The gel cannot pass through the object: inside the patch it lies at least as deep as the
     # penetration the gel takes (outside, the elastic displacement alone).
@@ -407,9 +456,10 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
 
         g, mean_g, touch = _texture_depth(work[w0:w1, v0:v1], env, pressure_at, dx, gel,
                                           support, tex, cloth)
-        cv2.add(dwin, g, dwin, mask=in_macro.view(np.uint8))
+        # (OpenCV's masked accumulate adds in place; its masked add went through a temporary.)
+        cv2.accumulate(g, dwin, mask=in_macro.view(np.uint8))
         cv2.max(dwin, 0.0, dwin)
-        mask[w0:w1, v0:v1] = in_macro & touch
+        np.logical_and(in_macro, touch, out=mask[w0:w1, v0:v1])
         # The approach is the crowns': the macro one plus their sink below the mean surface there.
         if in_macro.any():
             _, _, _, (tx, ty) = cv2.minMaxLoc(env, mask=in_macro.view(np.uint8))
@@ -417,7 +467,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     else:
         mask[w0:w1, v0:v1] = in_macro
     # The pad's travel bounds the depth (the macro solve's 1e-3 tolerance may overshoot it by a hair).
-    np.minimum(depth, np.float32(vmax), out=depth)
+    cv2.min(depth, float(vmax), dst=depth)  # (OpenCV's: a third of numpy's time here)
     return depth, mask, float(delta), force, bottomed, state
 
 
@@ -437,6 +487,7 @@ class _Macro:
     key: tuple
     cshape: tuple
     area: float
+    contact_exponent: float | None = None
 
 
 def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cells, warm) -> _Macro:
@@ -448,10 +499,9 @@ def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cell
     cm = dx * f
     cshape = (-(-(r1 - r0) // f), -(-(c1 - c0) // f))
     if tex is not None:
-        # Crown envelope on the coarse grid: each cell's highest point (block centres of a
-        # dilation), then a closing over the texture's scale fills the valleys between crowns.
-        pooled = cv2.resize(cv2.dilate(region, np.ones((f, f), np.uint8)), (cshape[1], cshape[0]),
-                            interpolation=cv2.INTER_NEAREST) if f > 1 else region
+        # Crown envelope on the coarse grid: each cell's highest point (see _crown_pool), then a
+        # closing over the texture's scale fills the valleys between crowns.
+        pooled = _crown_pool(region, f, cshape) if f > 1 else region
         env_c = _closing(pooled, int(math.ceil(ENVELOPE_SPAN * tex / cm)) | 1).astype(np.float64)
     else:
         env_c = _pool(region, f)
@@ -460,6 +510,7 @@ def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cell
     area = cm * cm
     key = (cshape, f)
     warmed = warm is not None and warm.key == key and warm.origin == (r0, c0)
+    same_grid = warmed  # (the warm state's own grid: its contact cells count like this frame's)
     if warmed:
         p = warm.pressure_mpa
     elif warm is not None and warm.work_shape == work.shape:
@@ -469,10 +520,89 @@ def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cell
         warmed = bool(np.any(p > 0))
     if not warmed:
         p = np.sqrt(np.maximum(hc + max(0.05 * vmax, 1e-4), 0.0))
-    # A warm start from the previous frame usually needs one pass of the cloth's fixed point.
+    # A force the pad cannot reach within its travel bottoms it out. After a bottomed frame that is
+    # tried first: one solve at the travel instead of a force-controlled solve past it and then that one.
+    at_travel = force_n is not None and warm is not None and warm.bottomed
+    # The first pass takes the cloth's stiffness at the contact predicted for this frame's force: over a
+    # sequence the contact grows with the force as a power law, cells ~ F^a (a = 0.1-0.6 on the
+    # captured cloths), and a is read off the warm frame and its own warm start. (The warm frame's
+    # contact as it stands was off by more than the tolerance on most frames whose force changed: a
+    # second and often a third pass.)
+    n_warm = int(np.count_nonzero(p > 0))
+    predictable = force_n is not None and same_grid and not warm.bottomed and warm.force_n > 0 and n_warm > 0
+    a = CONTACT_EXPONENT if not predictable or warm.contact_exponent is None else warm.contact_exponent
+    cells = n_warm * (force_n / warm.force_n) ** a if predictable else None
     p, delta, bottomed = solve_on_cloth(hc, cm, gel, support, force_n, depth_mm, p, vmax=vmax, tol=MACRO_TOL,
-                                        maxit=MACRO_MAXIT)
-    return _Macro(r0, r1, c0, c1, f, cm, env_c, emax, p, float(delta), bool(bottomed), key, cshape, area)
+                                        maxit=MACRO_MAXIT, at_travel=at_travel, cells=cells)
+    exponent = None
+    if predictable and not bottomed:
+        step = math.log(force_n / warm.force_n)
+        n = int(np.count_nonzero(p > 0))
+        if abs(step) >= EXPONENT_MIN_STEP and n > 0:
+            exponent = min(max(math.log(n / n_warm) / step, 0.0), 1.0)
+        else:  # (a small step's change is the motion's more than the force's)
+            exponent = warm.contact_exponent
+    return _Macro(r0, r1, c0, c1, f, cm, env_c, emax, p, float(delta), bool(bottomed), key, cshape, area, exponent)
+
+
+def _solve_at(op: Operator, hc: np.ndarray, area: float, delta: float, p: np.ndarray, tol: float = MACRO_TOL,
+              maxit: int = MACRO_MAXIT) -> np.ndarray:
+    """The macro contact at the approach ``delta`` (mm), warm-started from ``p`` (MPa, e.g. a solution
+    at a larger approach, or the previous frame's): its pressure, MPa.
+
+    The start keeps ``p`` on the cells the object overlaps at ``delta`` (the contact at a smaller
+    approach lies within them): 9-14 iterations on the captured bottomed frames, where adding 1 MPa
+    on every overlapping cell (a start far above a cloth's kPa) took 25-28."""
+    overlap = hc + delta > 0
+    p0 = np.where(overlap, np.maximum(p, 0), 0.0)
+    if not np.any(p0 > 0):  # (no pressure there yet: start uniform on the overlap)
+        p0 = overlap.astype(np.float64)
+    return pk_solve(op, hc, area, delta=delta, p0=p0, tol=tol, maxit=maxit)[0]
+
+
+def _crown_pool(region: np.ndarray, f: int, cshape: tuple[int, int]) -> np.ndarray:
+    """The highest point (mm, float32 ``cshape``) of ``region`` (mm, float32) near each of the coarse
+    grid's ``f``-pixel blocks: its dilation by an f x f square read by OpenCV's nearest-neighbour
+    resize to ``cshape``, which reads pixel c = floor(i n / m) for cell i (n pixels, m cells along
+    an axis): the maximum over pixels [c - f // 2, c - f // 2 + f).
+
+    When the grid divides the region evenly (the usual whole-frame box: 720 x 960 px in 48 x 64
+    blocks of 15) c = f i, the windows tile the axis, and the maxima are two strided reductions
+    (0.2 ms instead of the full-resolution dilation's 0.9 ms, measured on a loaded 2-core machine);
+    other grids take the dilation. Same values either way (a maximum is exact).
+
+    (Cell i's window then starts f // 2 pixels before its block, half a block off the block the rest
+    of the model gives it, and the last f // 2 rows and columns fall in no window. Kept as it was:
+    centring it moves the envelope by half a cell, a change to the model's results.)
+    """
+    rows = _tiled_window_max(region, f, cshape[0])
+    # (The second pass runs on the transposed, contiguous rows: a reduction over strided columns is
+    # 3 times slower.)
+    cols = None if rows is None else _tiled_window_max(np.ascontiguousarray(rows.T), f, cshape[1])
+    if cols is None:
+        return cv2.resize(cv2.dilate(region, np.ones((f, f), np.uint8)), (cshape[1], cshape[0]),
+                          interpolation=cv2.INTER_NEAREST)
+    return np.ascontiguousarray(cols.T)
+
+
+def _tiled_window_max(a: np.ndarray, f: int, m: int) -> np.ndarray | None:
+    """For each of m cells along the first axis of ``a`` (n rows): the maximum over rows
+    [c - f // 2, c - f // 2 + f) (clipped to the axis) about the row c that OpenCV's INTER_NEAREST
+    resize from n to m samples, floor(i * (1 / (m / n))) (its double arithmetic); (m, ...) like ``a``.
+    None unless c = f i for every cell (the windows then tile the axis: strided reductions)."""
+    n = a.shape[0]
+    c = np.minimum(np.floor(np.arange(m) * (1.0 / (m / n))), n - 1)
+    if not np.array_equal(c, f * np.arange(m)):
+        return None
+    lo = f - f // 2  # cell 0's window is [-(f // 2), lo); cell i's starts at lo + (i - 1) f
+    out = np.empty((m,) + a.shape[1:], a.dtype)
+    out[0] = a[:min(lo, n)].max(axis=0)
+    full = min(m - 1, (n - lo) // f)  # cells 1..full end within the axis
+    if full > 0:
+        out[1:full + 1] = a[lo:lo + full * f].reshape((full, f) + a.shape[1:]).max(axis=1)
+    for i in range(full + 1, m):  # (at most the last cell, clipped at the axis' end)
+        out[i] = a[lo + (i - 1) * f:].max(axis=0)
+    return out
 
 
 def _resample_pressure(warm: MacroState, origin: tuple[int, int], f: int, cshape: tuple[int, int]) -> np.ndarray:
@@ -504,7 +634,8 @@ def _widen(a: int, b: int, n: int, least: int = MIN_WINDOW_PX) -> tuple[int, int
 
 def _window_pressure(p: np.ndarray, f: int, origin, win) -> np.ndarray:
     """A coarse field (e.g. the pressure, MPa) bilinearly at the fine pixels of ``win`` = (w0, w1,
-    v0, v1), given the coarse grid's origin (fine pixel of its first block) and block size ``f``."""
+    v0, v1), given the coarse grid's origin (fine pixel of its first block) and block size ``f``:
+    float32 (w1 - w0, v1 - v0), a view into a slightly larger array."""
     r0, c0 = origin
     w0, w1, v0, v1 = win
     # Coarse cells covering the window, one extra on each side for the interpolation (zero beyond
@@ -517,7 +648,7 @@ def _window_pressure(p: np.ndarray, f: int, origin, win) -> np.ndarray:
         sub[a0 - i0:a1 - i0, b0 - j0:b1 - j0] = p[a0:a1, b0:b1]
     up = _upsample(sub, f, ((i1 - i0) * f, (j1 - j0) * f))
     oy, ox = w0 - (r0 + i0 * f), v0 - (c0 + j0 * f)
-    return np.ascontiguousarray(up[oy:oy + w1 - w0, ox:ox + v1 - v0])
+    return up[oy:oy + w1 - w0, ox:ox + v1 - v0]  # (a view: OpenCV reads strided rows, no copy needed)
 
 
 def _cell_pressure(p: np.ndarray, f: int, origin, win, cs: tuple[int, int]) -> np.ndarray:
@@ -528,11 +659,22 @@ def _cell_pressure(p: np.ndarray, f: int, origin, win, cs: tuple[int, int]) -> n
     small matrices (the fine field and its average took two full-window passes)."""
     w0, w1, v0, v1 = win
     cols, rows = cs
-    ry = _cell_means(_bilinear_matrix((np.arange(w0, w1) + 0.5 - origin[0]) / f - 0.5, p.shape[0]), rows)
-    rx = _cell_means(_bilinear_matrix((np.arange(v0, v1) + 0.5 - origin[1]) / f - 0.5, p.shape[1]), cols)
+    ry = _axis_cell_matrix(w0, w1, origin[0], f, p.shape[0], rows)
+    rx = _axis_cell_matrix(v0, v1, origin[1], f, p.shape[1], cols)
     # OpenCV's product runs on the worker's one thread (numpy's BLAS may start threads at these sizes).
     out = cv2.gemm(cv2.gemm(ry, p.astype(np.float32), 1.0, None, 0.0), rx, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
     return np.maximum(out, np.float32(0.0))
+
+
+@functools.lru_cache(maxsize=16)
+def _axis_cell_matrix(a: int, b: int, origin: int, f: int, n: int, cells: int) -> np.ndarray:
+    """float32 (cells, n), read-only: the n coarse samples (``f``-pixel blocks from fine pixel ``origin``)
+    read bilinearly at fine pixels a..b-1, then averaged over ``cells`` cells tiling them (one axis of
+    :func:`_cell_pressure`). Cached: a sequence's frames mostly share their window (a whole-pad cloth:
+    72% of the captured frames' axes), and building it took about half of _cell_pressure's time."""
+    m = _cell_means(_bilinear_matrix((np.arange(a, b) + 0.5 - origin) / f - 0.5, n), cells)
+    m.flags.writeable = False
+    return m
 
 
 def _bilinear_matrix(coords: np.ndarray, n: int) -> np.ndarray:
@@ -554,17 +696,21 @@ def _cell_means(rows_px: np.ndarray, cells: int) -> np.ndarray:
 
 
 def cloth_stiffness(support: FabricSupport | None, p: np.ndarray, force_n: float | None, area: float,
-                     close_px: int = 0) -> float:
+                    close_px: int = 0, cells: float | None = None) -> float:
     """The cloth's secant stiffness (kPa/mm) at the contact's mean pressure under ``p`` (MPa, the
     current estimate): the load ``force_n`` (N; None: the load ``p`` carries) over the cells ``p``
-    touches, closed over ``close_px`` cells when >= 2 (the apparent contact of a texture, see
-    elastic.press_elastic); inf for a rigid object."""
+    touches (or, with ``force_n``, over ``cells`` when given: a predicted contact), closed over
+    ``close_px`` cells when >= 2 (the apparent contact of a texture, see elastic.press_elastic); inf for
+    a rigid object."""
     if support is None:
         return math.inf
-    touch = p > 0
-    if close_px >= 2 and touch.any():
-        touch = cv2.morphologyEx(touch.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((close_px, close_px), np.uint8))
-    n = int(np.count_nonzero(touch))
+    if cells is not None and force_n is not None:
+        n = cells
+    else:
+        touch = p > 0
+        if close_px >= 2 and touch.any():
+            touch = cv2.morphologyEx(touch.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((close_px, close_px), np.uint8))
+        n = int(np.count_nonzero(touch))
     if force_n is not None:
         pm_kpa = 1e3 * force_n / (area * max(n, 1))
     else:
@@ -575,12 +721,15 @@ def cloth_stiffness(support: FabricSupport | None, p: np.ndarray, force_n: float
 
 def solve_on_cloth(h: np.ndarray, d: float, gel, support: FabricSupport | None, force_n: float | None,
                    depth_mm: float | None, p: np.ndarray, *, vmax: float, tol: float, maxit: int,
-                   close_px: int = 0, dtype=np.float32) -> tuple[np.ndarray, float, bool]:
+                   close_px: int = 0, dtype=np.float32, at_travel: bool = False,
+                   cells: float | None = None) -> tuple[np.ndarray, float, bool]:
     """Frictionless contact of the surface ``h`` (mm, <= 0 below its top, on a grid of ``d`` mm cells)
     with the layer of ``gel`` on the cloth ``support`` (None: rigid), at the force ``force_n`` (N) or the
     approach ``depth_mm`` (mm), the travel ``vmax`` (mm) bounding the approach. ``p``: a first estimate of
     the pressure (MPa); ``tol``, ``maxit``: Polonsky-Keer's; ``close_px``: see :func:`cloth_stiffness`;
-    ``dtype``: the operator's arithmetic. Returns (pressure MPa, approach mm, bottomed). The reference
+    ``dtype``: the operator's arithmetic; ``at_travel``: try the travel first (the previous frame
+    bottomed out); ``cells``: the contact predicted for the force, for the first pass's stiffness (see
+    :func:`cloth_stiffness`). Returns (pressure MPa, approach mm, bottomed). The reference
     (:mod:`gelsim.gel.elastic`) and the macro solve here both go through this.
 
     The cloth's secant stiffness depends on the contact's mean pressure, so the solve is repeated
@@ -599,20 +748,31 @@ def solve_on_cloth(h: np.ndarray, d: float, gel, support: FabricSupport | None, 
     area = d * d
     bottomed = False
     delta = 0.0 if depth_mm is None else float(depth_mm)
+    at_travel = at_travel and force_n is not None
     used = None
     for _ in range(SUPPORT_PASSES):
-        ks = cloth_stiffness(support, p, force_n, area, close_px)
+        ks = cloth_stiffness(support, p, force_n, area, close_px, cells if used is None else None)
         if used is not None and abs(ks - used) <= SUPPORT_TOL * used:
             break
         op = cloth_operator(h.shape, d, gel, support, ks, dtype)
         used = ks
-        if force_n is not None:
+        if at_travel:
+            # The force grows with the approach, so the pass is bottomed exactly when the force at the
+            # travel falls short of the request.
+            p = _solve_at(op, h, area, vmax, p, tol, maxit)
+            bottomed = float(p.sum()) * area < force_n
+            delta = vmax
+        if force_n is not None and not bottomed:
             p, delta, _ = pk_solve(op, h, area, force=force_n, p0=p, tol=tol, maxit=maxit)
             bottomed = delta > vmax
-        if force_n is None or bottomed:
-            bottomed = bottomed or depth_mm > vmax
+            if bottomed:
+                p = _solve_at(op, h, area, vmax, p, tol, maxit)
+                delta = vmax
+        if force_n is None:
+            bottomed = depth_mm > vmax
             delta = vmax if bottomed else float(depth_mm)
-            p, _, _ = pk_solve(op, h, area, delta=delta, p0=np.maximum(p, 0) + (h + delta > 0), tol=tol, maxit=maxit)
+            p = _solve_at(op, h, area, delta, p, tol, maxit)
+        at_travel = bottomed
         if support is None or not math.isfinite(ks):
             break
     return p, float(delta), bool(bottomed)
