@@ -261,7 +261,9 @@ def test_convergence_imprint_model_pyramid_loses_texture():
     assert pts["pyramid"]["kept_relief"] < 0.8 and abs(pts["twoscale"]["kept_relief"] - 1) < 0.2
     assert pts["pyramid"]["texture_err"] > 2 * pts["twoscale"]["texture_err"] > 0
     assert set(pts["pyramid"]["per_scene"]) == {"fabric5-press"}
-    assert pts["elastic"]["stage_ms"] > 10 * pts["twoscale"]["stage_ms"]
+    # The reference solves every pixel: it stays several times the two-scale model's cost (about 9.5x here
+    # since the layer's convolutions moved to OpenCV's DFT, which both models use; 3x leaves room for load).
+    assert pts["elastic"]["stage_ms"] > 3 * pts["twoscale"]["stage_ms"]
 
 
 def test_cli_json(tmp_path, capsys):
