@@ -32,11 +32,6 @@ from scipy.special import j0, j1, k0, k1
 # contact radius of 10 px).
 CG_TOL = 1e-6
 CG_MAXIT = 2000
-# pk_solve carries the displacement from step to step when a step's projection changes at most this
-# many cells (a shifted kernel each, about 3 us on a 48x64 grid, against 70 us for a convolution)...
-SPARSE_MAX_CELLS = 16
-# ...and recomputes it every this many steps (float32 rounding builds up at ~1e-7 relative a step).
-SPARSE_REFRESH = 8
 # Beyond x = q h = 20 the layer factor S differs from 1 by < 1e-15 (terms in exp(-2x)).
 _S_X_MAX = 20.0
 
@@ -184,7 +179,6 @@ class Operator:
         if self.cw:
             self.kf = cv2.scaleAdd(_scaled(_unit_spectrum, self.s, self.dtype), self.cw, self.kf)
         self._buf = np.zeros(self.s, self.dtype)  # zero beyond the (ny, nx) corner, which each call fills
-        self._kc = None
 
     def _conv(self, p: np.ndarray, kf: np.ndarray) -> np.ndarray:
         """(ny, nx) view of a fresh (padded) array: K * p for the scaled packed spectrum ``kf``."""
@@ -200,25 +194,6 @@ class Operator:
     def __call__(self, p: np.ndarray) -> np.ndarray:
         """The total closure (mm: gel, cloth and yarn crowns) under ``p`` (MPa)."""
         return self._conv(p, self.kf)
-
-    def add_impulses(self, u: np.ndarray, flat: np.ndarray, values: np.ndarray) -> None:
-        """u += K * c in place (u: (ny, nx) contiguous, of the operator's dtype) for a pressure c that
-        is ``values`` (MPa) at the flat indices ``flat`` of the (ny, nx) grid and 0 elsewhere: one
-        shifted copy of the total kernel per cell, cheaper than a convolution for a few cells."""
-        kc = self._centred_kernel()
-        for j, v in zip(flat.tolist(), values.tolist()):
-            a, b = divmod(j, self.nx)
-            cv2.scaleAdd(kc[self.ny - 1 - a:2 * self.ny - 1 - a, self.nx - 1 - b:2 * self.nx - 1 - b], v, u, dst=u)
-
-    def _centred_kernel(self) -> np.ndarray:
-        """The total kernel's coefficients at offsets -(n-1)..n-1 on each axis, (2 ny - 1, 2 nx - 1),
-        offset 0 at (ny - 1, nx - 1); built on first use from the spectrum."""
-        if self._kc is None:
-            k = cv2.idft(self.kf, flags=cv2.DFT_REAL_OUTPUT)  # (kf carries the 1 / (my mx))
-            iy = np.arange(-(self.ny - 1), self.ny) % self.s[0]
-            ix = np.arange(-(self.nx - 1), self.nx) % self.s[1]
-            self._kc = np.ascontiguousarray(k[iy][:, ix])
-        return self._kc
 
 
 @functools.lru_cache(maxsize=32)
@@ -247,8 +222,7 @@ def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = 
     p0: initial pressure (MPa), e.g. the previous frame's. tol: stop when the pressure
     changes by less than this (relative L1) in one iteration.
     Returns (pressure MPa, approach mm, iterations). The arithmetic is in the operator's dtype
-    (the contact set enters as a 0/1 mask: no gathers on the small grids this runs on). With an
-    :class:`Operator` most steps take one convolution, not two (see SPARSE_MAX_CELLS).
+    (the contact set enters as a 0/1 mask: no gathers on the small grids this runs on).
     """
     dtype = getattr(op, "dtype", np.float64)
     force_ctl = force is not None
@@ -264,22 +238,13 @@ def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = 
     icf = np.empty_like(p)
     p_old = np.empty_like(p)
     g_old, d = 1.0, 0.0
-    # u = op(p), carried from step to step: the step moves p by -tau t (whose image r = op(t) is
-    # computed anyway) plus a correction on the cells it clips or adds, which ``add_impulses`` maps
-    # when they are few; a full convolution otherwise, and every SPARSE_REFRESH steps (rounding).
-    impulses = getattr(op, "add_impulses", None)
-    u = None
-    carried = 0
     it = 0
     for it in range(1, maxit + 1):
         np.greater(p, 0, out=icf)
         n = float(icf.sum())
         if n == 0:
             break
-        if u is None:
-            u = np.ascontiguousarray(op(p))
-            carried = 0
-        g = u - target
+        g = op(p) - target
         if force_ctl:
             g -= dtype(float(np.vdot(g, icf)) / n)
         gm = g * icf
@@ -290,8 +255,9 @@ def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = 
         else:  # (a restart: beta = 0)
             t = gm.copy()
         g_old = max(gg, 1e-300)
-        r_op = op(t)
-        r = r_op - dtype(float(np.vdot(r_op, icf)) / n) if force_ctl else r_op
+        r = op(t)
+        if force_ctl:
+            r = r - dtype(float(np.vdot(r, icf)) / n)
         den = float(np.vdot(r, t))  # t is zero off the contact
         if den == 0.0:
             # The current contact set is solved exactly (e.g. a few cells of equal height with the
@@ -304,12 +270,11 @@ def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = 
                 p *= dtype(force / (area * float(p.sum())))
             t[:] = 0
             d = 0.0
-            u = None
             continue
         tau = float(np.vdot(g, t)) / den
         np.copyto(p_old, p)
-        w = cv2.scaleAdd(t, -tau, p)  # the step, before the projection
-        np.maximum(w, 0, out=p)
+        cv2.scaleAdd(t, -tau, p, dst=p)
+        np.maximum(p, 0, out=p)
         iol = g < 0
         iol &= p == 0
         grew = bool(iol.any())
@@ -318,24 +283,11 @@ def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = 
             np.subtract(p, dtype(tau) * g, out=p, where=iol)
         else:
             d = 1.0
-        if impulses is not None and carried < SPARSE_REFRESH:
-            corr = p - w
-            flat = np.flatnonzero(corr)
-            if flat.size <= SPARSE_MAX_CELLS:
-                cv2.scaleAdd(r_op, -tau, u, dst=u)
-                impulses(u, flat, corr.ravel()[flat])
-                carried += 1
-            else:
-                u = None
-        else:
-            u = None
         s = float(p.sum())
         if s <= 0:
             break
         if force_ctl:
             p *= dtype(force / (area * s))
-            if u is not None:
-                u *= dtype(force / (area * s))
             s = force / area
         # Converged when the pressure no longer moves and no overlapping cell joined the contact this
         # step (a small first contact set can otherwise "converge" after one tiny step).
@@ -344,8 +296,8 @@ def pk_solve(op: Operator, h: np.ndarray, area: float, *, force: float | None = 
     p = p.astype(np.float64)
     if force_ctl:
         ic = p > 0
-        gap = (op(p) if u is None else u) - h
-        delta = float(gap[ic].mean()) if ic.any() else 0.0
+        u = op(p) - h
+        delta = float(u[ic].mean()) if ic.any() else 0.0
     return p, float(delta), it
 
 
