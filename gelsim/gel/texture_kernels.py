@@ -108,60 +108,60 @@ def band_share(t, share, fs: int):
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def moment_sums(b, d: float, fs: int, rows: int, cols: int):
-    """The cells' sums of b, b^2, bx^2, by^2 and bx by (b's central-difference slopes, mm/mm, at
-    ``d`` mm per pixel; mirrored at the edges as in :func:`slope_sums`): float32 ``(rows, cols, 5)``,
-    ``fs`` x ``fs`` pixels per cell."""
+def _slopes(b, i: int, h: float, gx, gy) -> None:
+    """Row i of ``b``'s central-difference slopes into ``gx``, ``gy`` (nx,), ``h`` = 1 / (2 pixel size).
+    At the array's edges the missing neighbour is mirrored about the edge pixel (OpenCV's default
+    border for its derivative filters), which reads a zero slope across it."""
     ny, nx = b.shape
-    out = np.zeros((rows, cols, 5), np.float64)
+    up = b[i - 1] if i > 0 else b[min(1, ny - 1)]
+    dn = b[i + 1] if i < ny - 1 else b[max(ny - 2, 0)]
+    bi = b[i]
+    for j in range(1, nx - 1):
+        gx[j] = (bi[j + 1] - bi[j - 1]) * h
+    gx[0] = 0.0
+    gx[nx - 1] = 0.0
+    for j in range(nx):
+        gy[j] = (dn[j] - up[j]) * h
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def moment_sums(b, d: float, fs: int, rows: int, cols: int):
+    """The cells' sums of b, b^2, bx^2, by^2 and bx by (b's slopes by :func:`_slopes`, mm/mm, at
+    ``d`` mm per pixel): float32 ``(rows, cols, 5)``, ``fs`` x ``fs`` pixels per cell."""
+    ny, nx = b.shape
+    out = np.zeros((5, rows, cols), np.float64)
     h = np.float32(0.5 / d)
+    gx = np.empty(nx, np.float32)
+    gy = np.empty(nx, np.float32)
     acc = np.empty((5, nx), np.float32)
     for i in range(ny):
-        up = b[i - 1] if i > 0 else b[min(1, ny - 1)]
-        dn = b[i + 1] if i < ny - 1 else b[max(ny - 2, 0)]
+        _slopes(b, i, h, gx, gy)
         bi = b[i]
         for j in range(nx):
-            lf = j - 1 if j > 0 else min(1, nx - 1)
-            rt = j + 1 if j < nx - 1 else max(nx - 2, 0)
-            gx = (bi[rt] - bi[lf]) * h
-            gy = (dn[j] - up[j]) * h
             v = bi[j]
             acc[0, j] = v
             acc[1, j] = v * v
-            acc[2, j] = gx * gx
-            acc[3, j] = gy * gy
-            acc[4, j] = gx * gy
-        ci = i // fs
-        for c in range(cols):
-            for m in range(5):
-                t = 0.0
-                for j in range(c * fs, (c + 1) * fs):
-                    t += acc[m, j]
-                out[ci, c, m] += t
-    return out.astype(np.float32)
+            acc[2, j] = gx[j] * gx[j]
+            acc[3, j] = gy[j] * gy[j]
+            acc[4, j] = gx[j] * gy[j]
+        for m in range(5):
+            _add_cells(acc[m], fs, out[m], i // fs)
+    return out.transpose(1, 2, 0).astype(np.float32)
 
 
 @njit(cache=True, nogil=True, fastmath=True)
 def slope_sums(tf, dx: float, fs: int, rows: int, cols: int):
-    """The cells' sums of the squared slope |grad tf|^2 (central differences, mm/mm), float64
-    ``(rows, cols)``. At the array's edges the missing neighbour is mirrored about the edge pixel
-    (OpenCV's default border for its derivative filters), which reads a zero slope across it."""
+    """The cells' sums of the squared slope |grad tf|^2 (:func:`_slopes`, mm/mm), float64 ``(rows, cols)``."""
     ny, nx = tf.shape
     out = np.zeros((rows, cols), np.float64)
     h = np.float32(0.5 / dx)
-    sq = np.empty(nx, np.float32)
+    gx = np.empty(nx, np.float32)
+    gy = np.empty(nx, np.float32)
     for i in range(ny):
-        up = tf[i - 1] if i > 0 else tf[min(1, ny - 1)]
-        dn = tf[i + 1] if i < ny - 1 else tf[max(ny - 2, 0)]
-        ti = tf[i]
-        for j in range(1, nx - 1):
-            gx = (ti[j + 1] - ti[j - 1]) * h
-            gy = (dn[j] - up[j]) * h
-            sq[j] = gx * gx + gy * gy
-        for j in (0, nx - 1):
-            gy = (dn[j] - up[j]) * h
-            sq[j] = gy * gy
-        _add_cells(sq, fs, out, i // fs)
+        _slopes(tf, i, h, gx, gy)
+        for j in range(nx):
+            gx[j] = gx[j] * gx[j] + gy[j] * gy[j]
+        _add_cells(gx, fs, out, i // fs)
     return out
 
 
@@ -213,13 +213,9 @@ def minus_field(g, field, fs: int, ny: int, nx: int):
 
 def field_at(field: np.ndarray, fs: int, y: int, x: int) -> float:
     """A coarse field's value at pixel (y, x), read as in the module's contract."""
-    def axis(p, n):
-        u = (p + 0.5) / fs - 0.5
-        k = max(0, min(int(np.floor(u)), n - 1))
-        k1 = min(k + 1, n - 1)
-        return k, k1, (min(max(u - k, 0.0), 1.0) if k1 > k else 0.0)
-    y0, y1, wy = axis(y, field.shape[0])
-    x0, x1, wx = axis(x, field.shape[1])
+    ys0, ys1, wys = _rows(y + 1, fs, field.shape[0])
+    xs0, xs1, wxs = _rows(x + 1, fs, field.shape[1])
+    y0, y1, wy, x0, x1, wx = ys0[y], ys1[y], float(wys[y]), xs0[x], xs1[x], float(wxs[x])
     top = (1.0 - wx) * field[y0, x0] + wx * field[y0, x1]
     bot = (1.0 - wx) * field[y1, x0] + wx * field[y1, x1]
     return float((1.0 - wy) * top + wy * bot)
