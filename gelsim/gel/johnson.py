@@ -233,6 +233,21 @@ class _Grid:
         return i, x - self.nodes[i]
 
 
+KEYS = ("contact_fraction", "kept", "zeta", "lam")
+
+
+@functools.cache
+def segment_arrays() -> tuple:
+    """The tables' segments as plain arrays, for compiled kernels (``texture_kernels.johnson_cells``):
+    (nodes float32 (n,), first intp, lo, hi, per_unit (the :class:`_Grid`'s bucket lookup),
+    start values float32 (2, len(KEYS), n - 1): kind ('1d', '2d') x key, slopes likewise)."""
+    grid, seg = _segments()
+    v0 = np.stack([np.stack([seg[kind, key][0] for key in KEYS]) for kind in ("1d", "2d")])
+    slope = np.stack([np.stack([seg[kind, key][1] for key in KEYS]) for kind in ("1d", "2d")])
+    return (grid.nodes, grid.first, np.float32(grid.lo), np.float32(grid.hi), np.float32(grid.per_unit),
+            np.ascontiguousarray(v0), np.ascontiguousarray(slope))
+
+
 class TableLookup:
     """The tables read at p / p* = ``s`` (array) for textures of ``anisotropy`` 0 (the isotropic
     2-D wave) to 1 (a 1-D wave), linear in between; None reads the 2-D wave alone.

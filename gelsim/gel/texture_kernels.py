@@ -25,6 +25,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .johnson import KEYS as TABLE_KEYS
+
+# Columns of johnson.segment_arrays read here.
+CONTACT, KEPT, LAM = (TABLE_KEYS.index(k) for k in ("contact_fraction", "kept", "lam"))
+
 
 @njit(cache=True, nogil=True)
 def _rows(n_px: int, fs: int, n_cells: int):
@@ -219,3 +224,188 @@ def field_at(field: np.ndarray, fs: int, y: int, x: int) -> float:
     top = (1.0 - wx) * field[y0, x0] + wx * field[y0, x1]
     bot = (1.0 - wx) * field[y1, x0] + wx * field[y1, x1]
     return float((1.0 - wy) * top + wy * bot)
+
+
+# --------------------------------------------------------------------------------------
+# The statistics grid's cell arithmetic (float32 (rows, cols) fields; one fused pass each where
+# numpy took 10-30 passes over temporaries, about 3 ms per 960x720 frame in all)
+# --------------------------------------------------------------------------------------
+# Floors that keep the ratios finite: a variance (mm^2), a depth (mm), a contact fraction.
+VAR_FLOOR_MM2 = 1e-14
+DEPTH_FLOOR_MM = 1e-9
+PHI_FLOOR = 0.01
+
+
+# arcsin(x) / x on [0, 1] without a call into libm (the scalar call, 6 ns, kept these loops from
+# vectorising): its Taylor series below ASIN_SERIES_BELOW, Abramowitz & Stegun 4.4.46 above
+# (pi/2 - sqrt(1 - x) P7(x), absolute error <= 2e-8). Both are within float32 rounding of arcsin.
+ASIN_SERIES_BELOW = 0.25
+ASIN_SERIES = (1.0, 1.0 / 6.0, 3.0 / 40.0, 5.0 / 112.0, 35.0 / 1152.0)   # of x^0, x^2, x^4, ...
+ASIN_AS_4_4_46 = (1.5707963050, -0.2145988016, 0.0889789874, -0.0501743046,
+                  0.0308918810, -0.0170881256, 0.0066700901, -0.0012624911)
+
+
+@njit(cache=True, nogil=True, fastmath=True, inline="always")
+def _asin_over_x(x):
+    """arcsin(x) / x for float32 x in [0, 1] (1 at 0)."""
+    a = ASIN_AS_4_4_46
+    big = (np.float32(np.pi / 2) - np.sqrt(np.float32(1.0) - x) * (
+        np.float32(a[0]) + x * (np.float32(a[1]) + x * (np.float32(a[2]) + x * (np.float32(a[3]) + x * (
+            np.float32(a[4]) + x * (np.float32(a[5]) + x * (np.float32(a[6]) + x * np.float32(a[7]))))))))) \
+        / max(x, np.float32(ASIN_SERIES_BELOW))
+    c = ASIN_SERIES
+    x2 = x * x
+    small = np.float32(c[0]) + x2 * (np.float32(c[1]) + x2 * (np.float32(c[2]) + x2 * (
+        np.float32(c[3]) + x2 * np.float32(c[4]))))
+    return small if x < np.float32(ASIN_SERIES_BELOW) else big
+
+
+@njit(cache=True, nogil=True, fastmath=True, inline="always")
+def _sinc_factor(qdx2, d):
+    """Factor on a central difference's mean square slope that undoes its sin(q d) / (q d)
+    response, from the read (q d)^2 (``d`` mm per pixel): (arcsin(q d) / (q d))^2, q d capped at 1."""
+    r = _asin_over_x(min(np.sqrt(qdx2) * d, np.float32(1.0)))
+    return r * r
+
+
+@njit(cache=True, nogil=True, fastmath=True, inline="always")
+def _share(q, e_half, yarn_comp, has_cloth: bool, cloth_k, ell):
+    """The gel's share of relief at wavenumber q (1/mm): 1 / (1 + E*/2 q C), C the support's
+    compliance per unit pressure (mm/MPa; yarns' Winkler plus, with ``has_cloth``, the cloth's
+    Pasternak 1 / (k (1 + (q ell)^2))). ``yarn_comp`` 0 without a support gives 1."""
+    comp = yarn_comp
+    if has_cloth:
+        comp = comp + np.float32(1.0) / (cloth_k * (np.float32(1.0) + (q * ell) * (q * ell)))
+    return np.float32(1.0) / (np.float32(1.0) + e_half * q * comp)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _locate(x, nodes, first, lo, hi, per_unit):
+    """(segment, offset from its start) of ``x`` on the tables' grid (johnson._Grid.locate's rule).
+    Written without branches (selects only), so that the loops calling it vectorise."""
+    x = min(max(x, lo), hi)
+    b = min(np.int64((x - lo) * per_unit), first.size - 1)
+    i = first[b]
+    i = min(i + np.int64(x >= nodes[min(i + 1, nodes.size - 1)]), nodes.size - 2)
+    return i, x - nodes[i]
+
+
+@njit(cache=True, nogil=True, fastmath=True, inline="always")
+def _table(v0, slope, key: int, i, off, s, a):
+    """Table column ``key`` (an index into johnson.KEYS) at the located s, blended from the 2-D wave
+    (a = 0) to the 1-D wave (a = 1); 1 at s >= 1 (complete contact)."""
+    v2 = v0[1, key, i] + slope[1, key, i] * off
+    v1 = v0[0, key, i] + slope[0, key, i] * off
+    v = v2 + a * (v1 - v2)
+    return np.float32(1.0) if s >= np.float32(1.0) else v
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def band_cells(mom, d, q_lo, q_hi):
+    """The texture band's statistics per cell from its smoothed cell means ``mom`` (float32
+    ``(rows, cols, 5)``: b, b^2, bx^2, by^2, bx by; slopes by central differences at ``d`` mm per
+    pixel). Returns float32 (rows, cols) fields: (variance mm^2; wavenumber 1/mm, clipped to
+    [q_lo, q_hi]; anisotropy 0 (isotropic) to 1 (a 1-D wave); mean mm).
+
+    Each axis's mean square slope is corrected for the central difference's response (exact for a
+    wave at any angle); q = RMS slope / RMS height; the anisotropy is the slope tensor's
+    eigenvalue spread over its trace."""
+    rows, cols = mom.shape[0], mom.shape[1]
+    n = rows * cols
+    # Planar copies first: the interleaved channels kept the loop below from vectorising (5x slower).
+    planes = np.empty((5, n), np.float32)
+    flat = mom.reshape(n, 5)
+    for i in range(n):
+        for k in range(5):
+            planes[k, i] = flat[i, k]
+    b, b2, bxx, byy, bxy = planes[0], planes[1], planes[2], planes[3], planes[4]
+    var = np.empty(n, np.float32)
+    q = np.empty(n, np.float32)
+    aniso = np.empty(n, np.float32)
+    for i in range(n):
+        m = b[i]
+        v = max(b2[i] - m * m, np.float32(VAR_FLOOR_MM2))
+        # (OpenCV's box filter keeps running sums: a mean of squares near zero can come out -1e-6.)
+        gxx = max(bxx[i], np.float32(0.0))
+        gyy = max(byy[i], np.float32(0.0))
+        cx = _sinc_factor(gxx / v, d)
+        cy = _sinc_factor(gyy / v, d)
+        gxx *= cx
+        gyy *= cy
+        gxy = bxy[i] * np.sqrt(cx * cy)
+        s2 = gxx + gyy
+        q[i] = min(max(np.sqrt(s2 / v), q_lo), q_hi)
+        spread = np.sqrt((gxx - gyy) * (gxx - gyy) + np.float32(4.0) * gxy * gxy)
+        aniso[i] = min(spread / max(s2, np.float32(VAR_FLOOR_MM2)), np.float32(1.0))
+        var[i] = v
+    shape = (rows, cols)
+    return var.reshape(shape), q.reshape(shape), aniso.reshape(shape), b.copy().reshape(shape)
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def map_cells(var, q, aniso, p, blur_mm, e_star, yarn_comp, has_cloth: bool, cloth_k, ell, s_max,
+              nodes, first, lo, hi, per_unit, v0, slope):
+    """Johnson's map per cell for the texture's band: ``var`` (mm^2, as blurred), ``q`` (1/mm),
+    ``aniso`` (0-1) from :func:`band_cells`; ``p``: the local mean pressure (MPa); ``blur_mm``:
+    the Gaussian blur's width the band was taken with (0: none); the gel's E* (MPa) and the support
+    as in :func:`_share`; ``s_max``: the cap on p / p*; the tables from ``johnson.segment_arrays``.
+
+    Returns float32 (rows, cols) fields: (1 / the blur's gain exp(-(q blur)^2 / 2); the gel's share
+    of relief; the effective crown-to-valley depth d_eff, mm; 1 - the span slope lam; the contact
+    fraction phi). The depth is 2 sqrt(2) sigma for a 1-D wave and 4 sigma for the 2-D one, blended
+    by the anisotropy; s = p / p* = p / (E*/4 q d_eff)."""
+    shape = var.shape
+    n = var.size
+    var, q, aniso, p = var.ravel(), q.ravel(), aniso.ravel(), p.ravel()
+    inv_gain = np.empty(n, np.float32)
+    share = np.empty(n, np.float32)
+    d_eff = np.empty(n, np.float32)
+    span = np.empty(n, np.float32)
+    phi = np.empty(n, np.float32)
+    e_half = np.float32(e_star / 2.0)
+    e_quarter = np.float32(e_star / 4.0)
+    one_d_drop = np.float32(4.0 - 2.0 * np.sqrt(2.0))
+    for j in range(n):
+        qi, a = q[j], aniso[j]
+        gain = np.exp(np.float32(-0.5) * (qi * blur_mm) * (qi * blur_mm))
+        sh = _share(qi, e_half, yarn_comp, has_cloth, cloth_k, ell)
+        depth = np.sqrt(var[j]) / gain * (np.float32(4.0) - one_d_drop * a)
+        de = max(depth * sh, np.float32(DEPTH_FLOOR_MM))
+        s = min(p[j] / (e_quarter * qi * de), s_max)
+        i, off = _locate(s, nodes, first, lo, hi, per_unit)
+        inv_gain[j] = np.float32(1.0) / gain
+        share[j] = sh
+        d_eff[j] = de
+        span[j] = np.float32(1.0) - _table(v0, slope, LAM, i, off, s, a)
+        phi[j] = _table(v0, slope, CONTACT, i, off, s, a)
+    return inv_gain.reshape(shape), share.reshape(shape), d_eff.reshape(shape), span.reshape(shape), \
+        phi.reshape(shape)
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def fine_cells(var_f, g2, dx, q_lo, q_hi, p, phi, e_star, yarn_comp, has_cloth: bool, cloth_k, ell, s_max,
+               nodes, first, lo, hi, per_unit, v0, slope):
+    """The share of the finer relief that prints on the crowns in contact, per cell: ``var_f``
+    (mm^2) and ``g2`` (mean square slope, central differences at ``dx`` mm per pixel) its smoothed
+    cell means; ``p`` the local mean pressure (MPa), carried by the crowns' contact fraction
+    ``phi``; its p* taken as the 2-D wave's at its RMS height and wavenumber (clipped to
+    [q_lo, q_hi]). Other arguments as :func:`map_cells`. Returns float32 (rows, cols): Johnson's
+    kept fundamental times the gel's share of relief."""
+    shape = var_f.shape
+    n = var_f.size
+    var_f, g2, p, phi = var_f.ravel(), g2.ravel(), p.ravel(), phi.ravel()
+    kept = np.empty(n, np.float32)
+    e_half = np.float32(e_star / 2.0)
+    e_quarter = np.float32(e_star / 4.0)
+    for j in range(n):
+        v = max(var_f[j], np.float32(VAR_FLOOR_MM2))
+        g = max(g2[j], np.float32(0.0))
+        g *= _sinc_factor(np.float32(0.5) * g / v, dx)
+        qf = min(max(np.sqrt(g / v), q_lo), q_hi)
+        sh = _share(qf, e_half, yarn_comp, has_cloth, cloth_k, ell)
+        crown_p = p[j] / max(phi[j], np.float32(PHI_FLOOR))
+        s = min(crown_p / (e_quarter * qf * max(np.float32(4.0) * np.sqrt(v) * sh, np.float32(DEPTH_FLOOR_MM))),
+                s_max)
+        i, off = _locate(s, nodes, first, lo, hi, per_unit)
+        kept[j] = _table(v0, slope, KEPT, i, off, s, np.float32(0.0)) * sh
+    return kept.reshape(shape)

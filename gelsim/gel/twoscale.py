@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from . import texture_kernels as kernels
-from .johnson import TableLookup, kept_relief
+from .johnson import segment_arrays
 from .layer import Operator, effective_modulus_mpa, pk_solve
 from .support import FabricSupport
 from .util import bbox
@@ -228,65 +228,37 @@ def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float,
         return cv2.blur(cv2.blur(small, (k, k), borderType=cv2.BORDER_REPLICATE), (k, k),
                         borderType=cv2.BORDER_REPLICATE)
 
-    def band_stats(b, d: float):
-        """(variance mm^2, wavenumber 1/mm, anisotropy 0-1, mean mm) of the band ``b`` sampled at
-        ``d`` mm per pixel, on the stats grid (``b``'s cells: ``b.shape / cs`` pixels)."""
-        # Central differences, each axis alone: a wave of q per axis reads sin(q d) / d there,
-        # which is inverted here (exact for a wave at any angle; the Sobel's cross smoothing is not).
-        f = b.shape[1] // cs[0]
-        mom = smooth(kernels.moment_sums(b, d, f, cs[1], cs[0]) / np.float32(f * f))
-        m1 = mom[..., 0]
-        var = np.maximum(mom[..., 1] - m1 * m1, np.float32(1e-14))
-        # (OpenCV's box filter keeps running sums: a mean of squares near zero can come out -1e-6.)
-        gxx = np.maximum(mom[..., 2], np.float32(0.0))
-        gyy = np.maximum(mom[..., 3], np.float32(0.0))
-        gxy = mom[..., 4]
-        cx = _sinc_correction(gxx / var, d)
-        cy = _sinc_correction(gyy / var, d)
-        gxx *= cx
-        gyy *= cy
-        gxy *= np.sqrt(cx * cy)
-        slope2 = gxx + gyy
-        # Between one period of the window and the grid's Nyquist wavenumber.
-        q = np.clip(np.sqrt(slope2 / var), np.float32(2.0 * math.pi / (k * fs * dx)), np.float32(math.pi / d))
-        aniso = np.minimum(np.sqrt((gxx - gyy) ** 2 + 4.0 * gxy * gxy) / np.maximum(slope2, np.float32(1e-14)), 1.0)
-        return var, q, aniso, np.ascontiguousarray(m1)
-
-    def share_at(q):
-        """The gel's share of relief at wavenumber q: in series with the yarns' Winkler stiffness and
-        the cloth's Pasternak one, ks (1 + (q l)^2) (the reference's operator, at wavenumber q)."""
-        if support is None:
-            return np.ones_like(q)
-        comp = np.float32(1.0 / support.yarn_stiffness_mpa_per_mm)
+    q_lo = np.float32(2.0 * math.pi / (k * fs * dx))   # one period of the smoothing window
+    tables = segment_arrays()
+    # The support's compliance per unit pressure (kernels._share): none, the yarns', and the cloth's.
+    yarn_comp, has_cloth, cloth_k, ell = 0.0, False, 1.0, 0.0
+    if support is not None:
+        yarn_comp = 1.0 / support.yarn_stiffness_mpa_per_mm
         if math.isfinite(cloth_mpa_per_mm):
-            ell = np.float32(support.shear_length_mm)
-            comp = comp + 1.0 / (np.float32(cloth_mpa_per_mm) * (1.0 + (q * ell) ** 2))
-        return (1.0 / (1.0 + np.float32(e_star / 2.0) * q * comp)).astype(np.float32)
+            has_cloth, cloth_k, ell = True, cloth_mpa_per_mm, support.shear_length_mm
+    share_args = (np.float32(e_star), np.float32(yarn_comp), has_cloth, np.float32(cloth_k), np.float32(ell))
 
+    # The band's statistics (kernels.band_cells), from the cells' moments smoothed over a period.
+    d_band = 2.0 * dx if half else dx
     tq_s = cv2.resize(tq, (NX // 2, NY // 2), interpolation=cv2.INTER_AREA) if half else tq
-    var, q, aniso, m_tq = band_stats(tq_s, 2.0 * dx if half else dx)
-    share = share_at(q)
+    f = tq_s.shape[1] // cs[0]
+    mom = smooth(kernels.moment_sums(tq_s, d_band, f, cs[1], cs[0]) / np.float32(f * f))
+    # Between one period of the window and the grid's Nyquist wavenumber.
+    var, q, aniso, m_tq = kernels.band_cells(mom, np.float32(d_band), q_lo, np.float32(math.pi / d_band))
+    # The blur lowered the texture's own band by gain = exp(-(q s)^2 / 2) (s its width, mm): its
+    # height is restored, and what the restored band leaves of t is the finer relief. (Only the
+    # oscillation about the local mean is scaled back: the mean is not blurred.) Johnson's map
+    # per cell: kernels.map_cells.
+    p_small = pressure_at(cs, (NY, NX))
+    inv_gain, share, d_eff, span, phi = kernels.map_cells(
+        var, q, aniso, p_small, np.float32(sigma * dx if blurred else 0.0), *share_args,
+        np.float32(S_MAX), *tables)
     cell_px = np.float32(fs * fs)
     if blurred:
-        # The blur lowered the texture's own band by gain = exp(-(q s)^2 / 2) (s its width, mm):
-        # restore its height, and take as finer relief what the restored band leaves of t.
-        # (Only the oscillation about the local mean is scaled back: the mean is not blurred.)
-        gain = np.exp(-0.5 * (q * np.float32(sigma * dx)) ** 2).astype(np.float32)
-        var = var / (gain * gain)
-        te, tf, tf2_sum = kernels.restore_band(t, tq, kernels.widen(m_tq, NX), kernels.widen(1.0 / gain, NX),
+        te, tf, tf2_sum = kernels.restore_band(t, tq, kernels.widen(m_tq, NX), kernels.widen(inv_gain, NX),
                                                kernels.widen(share, NX), fs)
     else:
         te, tf = kernels.band_share(t, kernels.widen(share, NX), fs), None
-    # Crown-to-valley depth from the RMS height: 2 sqrt(2) sigma for a 1-D wave, 4 sigma for the
-    # 2-D wave (exact for both, blended by the anisotropy). The deepest valley would count the
-    # narrow crevices between yarns, which the gel cannot enter and a finer grid resolves deeper.
-    depth = np.sqrt(var) * (np.float32(4.0) - np.float32(4.0 - 2.0 * math.sqrt(2.0)) * aniso)
-    d_eff = np.maximum(depth * share, np.float32(1e-9))
-    p_small = pressure_at(cs, (NY, NX))
-    s = np.minimum(p_small / (np.float32(e_star / 4.0) * q * d_eff), np.float32(S_MAX))
-    tables = TableLookup(s, aniso)
-    lam = tables.blend("lam")
-    phi = tables.blend("contact_fraction")
     # The cut: the depth whose bearing area is the theory's contact fraction. The contact area
     # depends on p / (E* RMS slope), not on the heights' distribution (Johnson; Persson for random
     # surfaces), while the depth at which a given area is reached does: a peaked knit loop has
@@ -298,20 +270,14 @@ def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float,
     if tf is not None:
         # The finer relief on the crowns in contact, at the crowns' pressure p / (contact fraction):
         # its height and mean slope are enough (its p* is taken as the 2-D wave's; tf has no mean).
-        var_f = np.maximum(smooth((tf2_sum / cell_px).astype(np.float32)), np.float32(1e-14))
-        g2 = kernels.slope_sums(tf, dx, fs, cs[1], cs[0])
-        g2 = np.maximum(smooth((g2 / cell_px).astype(np.float32)), np.float32(0.0))
-        g2 *= _sinc_correction(0.5 * g2 / var_f, dx)
-        q_f = np.clip(np.sqrt(g2 / var_f), np.float32(2.0 * math.pi / (k * fs * dx)), np.float32(math.pi / dx))
-        share_f = share_at(q_f)
-        crown_p = p_small / np.maximum(phi, np.float32(0.01))
-        s_f = np.minimum(crown_p / (np.float32(e_star / 4.0) * q_f * np.maximum(4.0 * np.sqrt(var_f) * share_f, 1e-9)),
-                         np.float32(S_MAX))
-        kept_f = (kept_relief(s_f, None) * share_f).astype(np.float32)
+        var_f = smooth((tf2_sum / cell_px).astype(np.float32))
+        g2 = smooth((kernels.slope_sums(tf, dx, fs, cs[1], cs[0]) / cell_px).astype(np.float32))
+        kept_f = kernels.fine_cells(var_f, g2, np.float32(dx), q_lo, np.float32(math.pi / dx), p_small, phi,
+                                    *share_args, np.float32(S_MAX), *tables)
     # g = te where te >= -cut (in contact: plus the finer relief it prints), else
     # -cut + lam (te + cut) = te - (1 - lam) min(te + cut, 0).
     g, touch, g_sum = kernels.press_texture(te, te if tf is None else tf, kernels.widen(cut, NX),
-                                            kernels.widen((1.0 - lam).astype(np.float32), NX),
+                                            kernels.widen(span, NX),
                                             kernels.widen(kept_f, NX), fs, tf is not None)
     gm = smooth((g_sum / cell_px).astype(np.float32))
     return kernels.minus_field(g, kernels.widen(gm, NX), fs, ny, nx), \
@@ -337,13 +303,6 @@ def _bearing_depth(te: np.ndarray, d_eff: np.ndarray, fs: int, phi: np.ndarray) 
     i = np.minimum(x.astype(np.intp), n - 2)
     z = z.astype(np.float32)
     return z[i] + (x - i) * (z[i + 1] - z[i])
-
-
-def _sinc_correction(qdx2: np.ndarray, dx: float) -> np.ndarray:
-    """Factor on a central difference's mean square slope that undoes its sin(q dx) / (q dx)
-    response, from the read (q dx)^2 (float32, same shape)."""
-    qr = np.minimum(np.sqrt(qdx2) * np.float32(dx), np.float32(1.0))
-    return np.where(qr > 1e-3, np.arcsin(qr) / np.maximum(qr, np.float32(1e-3)), np.float32(1.0)) ** 2
 
 
 def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, depth_mm: float | None,

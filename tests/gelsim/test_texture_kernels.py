@@ -81,3 +81,121 @@ def test_press_texture_is_johnsons_map(fs):
     full = _grow(field, shape)
     for y, x in ((0, 0), (shape[0] - 1, nx - 1), (shape[0] // 2, nx // 3), (fs // 2, 1)):
         assert K.field_at(field, fs, y, x) == pytest.approx(float(full[y, x]), abs=1e-6)
+
+
+# ---------------------------------------------------------------- the statistics grid's cell kernels
+
+def _sinc_ref(qdx2, d):
+    qr = np.minimum(np.sqrt(qdx2.astype(np.float64)) * d, 1.0)
+    return np.where(qr > 0, np.arcsin(qr) / np.maximum(qr, 1e-300), 1.0) ** 2
+
+
+def test_asin_over_x_matches_arcsin_to_float32_rounding():
+    from numba import njit
+
+    @njit
+    def many(x):
+        out = np.empty_like(x)
+        for i in range(x.size):
+            out[i] = K._asin_over_x(x[i])
+        return out
+
+    x = np.linspace(0.0, 1.0, 100_001).astype(np.float32)
+    ref = np.where(x > 0, np.arcsin(x.astype(np.float64)) / np.maximum(x, 1e-30), 1.0)
+    assert np.abs(many(x) / ref - 1.0).max() < 3e-6
+
+
+def _moments(rng, rows=11, cols=17):
+    mom = np.empty((rows, cols, 5), np.float32)
+    mom[..., 0] = rng.normal(-0.02, 0.005, (rows, cols))
+    var = rng.uniform(1e-7, 1e-4, (rows, cols))
+    mom[..., 1] = mom[..., 0].astype(np.float64) ** 2 + var
+    gxx, gyy = rng.uniform(0.0, 0.02, (2, rows, cols))
+    mom[..., 2], mom[..., 3] = gxx, gyy
+    mom[..., 4] = rng.uniform(-1.0, 1.0, (rows, cols)) * np.sqrt(gxx * gyy)
+    mom[0, 0, 1] = mom[0, 0, 0] ** 2 - 1e-6   # a box filter's negative variance: floored
+    mom[0, 1, 2:] = 0.0                      # a flat cell
+    return mom
+
+
+def test_band_cells_are_the_corrected_moments():
+    rng = np.random.default_rng(5)
+    mom = _moments(rng)
+    d, q_lo, q_hi = 0.03, 2.0, np.pi / 0.03
+    var, q, aniso, mean = K.band_cells(mom, np.float32(d), np.float32(q_lo), np.float32(q_hi))
+    m = mom[..., 0].astype(np.float64)
+    v = np.maximum(mom[..., 1] - m * m, K.VAR_FLOOR_MM2)
+    gxx = np.maximum(mom[..., 2], 0.0)
+    gyy = np.maximum(mom[..., 3], 0.0)
+    cx, cy = _sinc_ref(gxx / v, d), _sinc_ref(gyy / v, d)
+    gxx, gyy, gxy = gxx * cx, gyy * cy, mom[..., 4] * np.sqrt(cx * cy)
+    s2 = gxx + gyy
+    assert np.allclose(var, v, rtol=1e-3, atol=1e-12)
+    assert np.array_equal(mean, mom[..., 0])
+    assert np.allclose(q, np.clip(np.sqrt(s2 / v), q_lo, q_hi), rtol=1e-4)
+    ref_a = np.minimum(np.sqrt((gxx - gyy) ** 2 + 4 * gxy ** 2) / np.maximum(s2, K.VAR_FLOOR_MM2), 1.0)
+    assert np.allclose(aniso, ref_a, atol=1e-4)
+    assert q[0, 1] == np.float32(q_lo) and aniso[0, 1] == 0.0
+
+
+def _share_ref(q, e_star, yarn_comp, cloth_k, ell):
+    comp = yarn_comp + (0.0 if cloth_k is None else 1.0 / (cloth_k * (1.0 + (q * ell) ** 2)))
+    return 1.0 / (1.0 + e_star / 2.0 * q * comp)
+
+
+@pytest.mark.parametrize("blur_mm, support", [(0.0, None), (0.02, (0.5, None)), (0.03, (0.5, (0.8, 0.4)))])
+def test_map_cells_are_johnsons_tables(blur_mm, support):
+    from gelsim.gel.johnson import TableLookup, segment_arrays
+
+    rng = np.random.default_rng(6)
+    rows, cols = 13, 19
+    var = rng.uniform(1e-7, 1e-4, (rows, cols)).astype(np.float32)
+    q = rng.uniform(3.0, 60.0, (rows, cols)).astype(np.float32)
+    aniso = rng.uniform(0.0, 1.0, (rows, cols)).astype(np.float32)
+    aniso[0, :3] = (0.0, 1.0, 0.5)
+    p = rng.uniform(0.0, 0.08, (rows, cols)).astype(np.float32)
+    e_star, s_max = 0.26, 1e3
+    yarn_comp, cloth = (0.0, None) if support is None else support
+    has_cloth = cloth is not None
+    cloth_k, ell = cloth if has_cloth else (1.0, 0.0)
+    inv_gain, share, d_eff, span, phi = K.map_cells(
+        var, q, aniso, p, np.float32(blur_mm), np.float32(e_star), np.float32(yarn_comp), has_cloth,
+        np.float32(cloth_k), np.float32(ell), np.float32(s_max), *segment_arrays())
+    q64 = q.astype(np.float64)
+    gain = np.exp(-0.5 * (q64 * blur_mm) ** 2)
+    sh = _share_ref(q64, e_star, yarn_comp, cloth_k if has_cloth else None, ell)
+    depth = np.sqrt(var / gain**2) * (4.0 - (4.0 - 2.0 * np.sqrt(2.0)) * aniso)
+    de = np.maximum(depth * sh, K.DEPTH_FLOOR_MM)
+    s = np.minimum(p / (e_star / 4.0 * q64 * de), s_max)
+    tabs = TableLookup(s.astype(np.float32), aniso)
+    assert np.allclose(inv_gain, 1.0 / gain, rtol=1e-5)
+    assert np.allclose(share, sh, rtol=1e-5)
+    assert np.allclose(d_eff, de, rtol=1e-4)
+    assert np.allclose(span, 1.0 - tabs.blend("lam"), atol=2e-4)
+    assert np.allclose(phi, tabs.blend("contact_fraction"), atol=2e-4)
+    assert (s >= 1).any() and (s < 1).any()    # both sides of complete contact were read
+    assert np.all(phi[s >= 1.0001] == 1.0) and np.all(span[s >= 1.0001] == 0.0)
+
+
+def test_fine_cells_print_the_kept_fundamental_on_the_crowns():
+    from gelsim.gel.johnson import kept_relief, segment_arrays
+
+    rng = np.random.default_rng(7)
+    rows, cols = 12, 15
+    var_f = rng.uniform(1e-9, 1e-6, (rows, cols)).astype(np.float32)
+    g2 = rng.uniform(0.0, 5e-3, (rows, cols)).astype(np.float32)
+    p = rng.uniform(0.0, 0.05, (rows, cols)).astype(np.float32)
+    phi = rng.uniform(0.0, 1.0, (rows, cols)).astype(np.float32)
+    dx, q_lo, e_star, yarn_comp, cloth_k, ell = 0.035, 2.0, 0.26, 0.4, 0.9, 0.3
+    q_hi = np.pi / dx
+    kept = K.fine_cells(var_f, g2, np.float32(dx), np.float32(q_lo), np.float32(q_hi), p, phi, np.float32(e_star),
+                        np.float32(yarn_comp), True, np.float32(cloth_k), np.float32(ell), np.float32(1e3),
+                        *segment_arrays())
+    v = var_f.astype(np.float64)
+    g = g2 * _sinc_ref(0.5 * g2 / v, dx)
+    qf = np.clip(np.sqrt(g / v), q_lo, q_hi)
+    sh = _share_ref(qf, e_star, yarn_comp, cloth_k, ell)
+    s = np.minimum(p / np.maximum(phi, K.PHI_FLOOR) / (e_star / 4.0 * qf * np.maximum(4.0 * np.sqrt(v) * sh, 1e-9)), 1e3)
+    ref = kept_relief(s.astype(np.float32), None) * sh
+    assert (s >= 1).any() and (s < 1).any()
+    assert np.allclose(kept, ref, atol=2e-4)
