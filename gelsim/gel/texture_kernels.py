@@ -204,16 +204,22 @@ def press_texture(te, tf, cut, span, kept_f, fs: int, with_fine: bool):
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def minus_field(g, field, fs: int, ny: int, nx: int):
-    """``g - field`` over the first ny rows and nx columns (``field`` coarse, :func:`widen`-ed)."""
+def add_texture(depth, g, field, fs: int, in_macro, touch, mask) -> None:
+    """The texture onto the gel's depth, in place: ``depth`` (mm, float32 (ny, nx), a view of the
+    window) gains ``g - field`` (the texture's oscillation about its local mean; ``g`` and ``touch``
+    cover at least (ny, nx), ``field`` coarse, :func:`widen`-ed) where ``in_macro`` (bool (ny, nx):
+    the macro contact), and is floored at 0 everywhere; ``mask`` (bool (ny, nx), written) is
+    in_macro and touch. (One pass where OpenCV took four: subtract, masked accumulate, max, and.)"""
+    ny, nx = depth.shape
     ys0, ys1, wys = _rows(g.shape[0], fs, field.shape[0])
-    out = np.empty((ny, nx), np.float32)
+    zero = np.float32(0.0)
     for i in range(ny):
         f0, f1, wy = field[ys0[i]], field[ys1[i]], wys[i]
-        gi, oi = g[i], out[i]
+        gi, di, mi, ti, oi = g[i], depth[i], in_macro[i], touch[i], mask[i]
         for j in range(nx):
-            oi[j] = gi[j] - (f0[j] + wy * (f1[j] - f0[j]))
-    return out
+            d = di[j] + (gi[j] - (f0[j] + wy * (f1[j] - f0[j])) if mi[j] else zero)
+            di[j] = max(d, zero)
+            oi[j] = mi[j] and ti[j]
 
 
 def field_at(field: np.ndarray, fs: int, y: int, x: int) -> float:

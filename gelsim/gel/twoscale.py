@@ -173,6 +173,30 @@ def _upsample(coarse: np.ndarray, f: int, shape: tuple[int, int]) -> np.ndarray:
     return up[: shape[0], : shape[1]]
 
 
+@dataclass(frozen=True)
+class TextureDepth:
+    """The texture's part of the gel surface over a window of (ny, nx) pixels, padded to whole
+    statistics cells (the arrays may be larger than the window; read their first ny rows and nx
+    columns). ``g``: the gel surface's texture, mm, float32, <= 0 below the crowns; ``mean``: its
+    local mean on the statistics grid of ``fs``-pixel cells (mm, float32 (rows, cols); read at a
+    pixel as :mod:`gelsim.gel.texture_kernels` reads coarse fields); ``touch``: the texture-scale
+    contact, bool."""
+    g: np.ndarray
+    mean: np.ndarray
+    fs: int
+    touch: np.ndarray
+
+    def mean_at(self, y: int, x: int) -> float:
+        """mean g at pixel (y, x), mm (<= 0: minus how far the crowns stand below the mean)."""
+        return kernels.field_at(self.mean, self.fs, y, x)
+
+    def add_to(self, depth: np.ndarray, in_macro: np.ndarray, mask: np.ndarray) -> None:
+        """``depth`` (mm, float32 (ny, nx)) += g - mean g where ``in_macro``, floored at 0; ``mask``
+        (bool (ny, nx)) = in_macro and the texture's contact. In place."""
+        kernels.add_texture(depth, self.g, kernels.widen(self.mean, self.g.shape[1]), self.fs, in_macro,
+                            self.touch, mask)
+
+
 def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float, gel,
                    support: FabricSupport | None, texture_mm: float, cloth_mpa_per_mm: float):
     """The texture's part of the gel surface for the texture ``t = surface - env`` (the object's
@@ -182,11 +206,9 @@ def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float,
     rows and NX columns from the window's corner (NY >= ny, NX >= nx: the cells may overhang it).
     ``cloth_mpa_per_mm``: the cloth's secant stiffness at the patch's mean pressure (inf: rigid).
 
-    Returns (g - mean g: the gel surface's oscillation about its local mean, mm, float32 (ny, nx);
-    mean g at a pixel, ``(y, x) -> mm``, <= 0: minus how far the crowns stand below that mean; the
-    texture-scale contact, bool (ny, nx)). The macro solve gives the gel's local *mean*
-    displacement (its q = 0 part carries the load), so the texture enters as a zero-mean
-    oscillation about it; the crowns are pushed in -mean g further.
+    Returns a :class:`TextureDepth`. The macro solve gives the gel's local *mean* displacement (its
+    q = 0 part carries the load), so the texture enters as a zero-mean oscillation about it
+    (g - mean g); the crowns are pushed in -mean g further.
 
     Two bands. The texture's own (``t`` blurred over texture / 16) sets p*, the contact and the
     spans through Johnson's map. Finer relief (pores, fibre fuzz, sharp yarn edges) sits on the
@@ -279,9 +301,7 @@ def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float,
     g, touch, g_sum = kernels.press_texture(te, te if tf is None else tf, kernels.widen(cut, NX),
                                             kernels.widen(span, NX),
                                             kernels.widen(kept_f, NX), fs, tf is not None)
-    gm = smooth((g_sum / cell_px).astype(np.float32))
-    return kernels.minus_field(g, kernels.widen(gm, NX), fs, ny, nx), \
-        lambda y, x: kernels.field_at(gm, fs, y, x), touch[:ny, :nx]
+    return TextureDepth(g, smooth((g_sum / cell_px).astype(np.float32)), fs, touch)
 
 
 def _bearing_depth(te: np.ndarray, d_eff: np.ndarray, fs: int, phi: np.ndarray) -> np.ndarray:
@@ -413,16 +433,12 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         def pressure_at(cs, shape):
             return _cell_pressure(p, f, (r0, c0), (w0, w0 + shape[0], v0, v0 + shape[1]), cs)
 
-        g, mean_g, touch = _texture_depth(work[w0:w1, v0:v1], env, pressure_at, dx, gel,
-                                          support, tex, cloth)
-        # (OpenCV's masked accumulate adds in place; its masked add went through a temporary.)
-        cv2.accumulate(g, dwin, mask=in_macro.view(np.uint8))
-        cv2.max(dwin, 0.0, dwin)
-        np.logical_and(in_macro, touch, out=mask[w0:w1, v0:v1])
+        texture = _texture_depth(work[w0:w1, v0:v1], env, pressure_at, dx, gel, support, tex, cloth)
+        texture.add_to(dwin, in_macro, mask[w0:w1, v0:v1])
         # The approach is the crowns': the macro one plus their sink below the mean surface there.
         if in_macro.any():
             _, _, _, (tx, ty) = cv2.minMaxLoc(env, mask=in_macro.view(np.uint8))
-            delta = float(delta) - mean_g(ty, tx)
+            delta = float(delta) - texture.mean_at(ty, tx)
     else:
         mask[w0:w1, v0:v1] = in_macro
     # The pad's travel bounds the depth (the macro solve's 1e-3 tolerance may overshoot it by a hair).

@@ -75,9 +75,19 @@ def test_press_texture_is_johnsons_map(fs):
     assert np.allclose(sums / fs**2, _cells(ref, fs), atol=1e-7)
     g0, _, _ = K.press_texture(t, tf, K.widen(cut, nx), K.widen(span, nx), K.widen(kept, nx), fs, False)
     assert np.allclose(g0, t - _grow(span, shape) * below, atol=1e-7)
-    out = K.minus_field(g, K.widen(field, nx), fs, shape[0] - 3, nx - 2)
-    assert out.shape == (shape[0] - 3, nx - 2)
-    assert np.allclose(out, (g - _grow(field, shape))[:-3, :-2], atol=1e-6)
+    # The texture onto a depth window smaller than the padded arrays, in place.
+    depth = np.zeros((shape[0] + 2, nx + 1), np.float32)
+    depth[:] = rng.random(depth.shape, dtype=np.float32) * np.float32(0.02)
+    win = depth[1:shape[0] - 2, :nx - 2]
+    before = win.copy()
+    in_macro = rng.random(win.shape) < 0.7
+    mask = np.ones((shape[0] + 5, nx), bool)
+    K.add_texture(win, g, K.widen(field, nx), fs, in_macro, touch, mask[2:shape[0] - 1, 1:nx - 1])
+    ref = np.maximum(before + np.where(in_macro, (g - _grow(field, shape))[:-3, :-2], 0.0), 0.0)
+    assert (ref == 0).any() and (ref > 0).any()
+    assert np.allclose(win, ref, atol=1e-6)
+    assert np.array_equal(mask[2:shape[0] - 1, 1:nx - 1], in_macro & touch[:-3, :-2])
+    assert mask[0].all() and mask[:, 0].all()   # outside the window: untouched
     full = _grow(field, shape)
     for y, x in ((0, 0), (shape[0] - 1, nx - 1), (shape[0] // 2, nx // 3), (fs // 2, 1)):
         assert K.field_at(field, fs, y, x) == pytest.approx(float(full[y, x]), abs=1e-6)
