@@ -236,16 +236,35 @@ class _Grid:
 KEYS = ("contact_fraction", "kept", "zeta", "lam")
 
 
+# A table whose nodes do not all sit on one grid step is resampled this much finer than its
+# narrowest segment for the compiled kernels (linear in between: the error is confined to the
+# segments around an off-grid node).
+RESAMPLE_PER_NARROWEST = 16
+
+
 @functools.cache
 def segment_arrays() -> tuple:
-    """The tables' segments as plain arrays, for compiled kernels (``texture_kernels.johnson_cells``):
-    (nodes float32 (n,), first intp, lo, hi, per_unit (the :class:`_Grid`'s bucket lookup),
-    start values float32 (2, len(KEYS), n - 1): kind ('1d', '2d') x key, slopes likewise)."""
-    grid, seg = _segments()
-    v0 = np.stack([np.stack([seg[kind, key][0] for key in KEYS]) for kind in ("1d", "2d")])
-    slope = np.stack([np.stack([seg[kind, key][1] for key in KEYS]) for kind in ("1d", "2d")])
-    return (grid.nodes, grid.first, np.float32(grid.lo), np.float32(grid.hi), np.float32(grid.per_unit),
-            np.ascontiguousarray(v0), np.ascontiguousarray(slope))
+    """The tables on a uniform grid of s, for compiled kernels (``texture_kernels`` reads them
+    with one multiply and one gather per value, which vectorises where a search does not):
+    (lo, hi, 1 / step; start values float32 (2, len(KEYS), segments): kind ('1d', '2d') x key;
+    slopes per grid step, likewise).
+
+    The grid's step is the tables' narrowest segment when every node lies on it (as in
+    assets/johnson.toml: 0.005), so the lookup is the tables' own linear interpolation."""
+    tabs = map_tables()
+    s = tabs["1d"].s
+    step = float(np.min(np.diff(s)))
+    k = (s - s[0]) / step
+    if not np.allclose(k, np.round(k), rtol=0.0, atol=1e-6):
+        step /= RESAMPLE_PER_NARROWEST
+    n = int(round((s[-1] - s[0]) / step))
+    grid = s[0] + step * np.arange(n + 1)
+    grid[-1] = s[-1]
+    vals = np.stack([np.stack([np.interp(grid, s, getattr(tabs[kind], key)) for key in KEYS])
+                     for kind in ("1d", "2d")])
+    v0 = np.ascontiguousarray(vals[..., :-1], dtype=np.float32)
+    slope = np.ascontiguousarray(np.diff(vals, axis=-1), dtype=np.float32)
+    return np.float32(s[0]), np.float32(s[-1]), np.float32(1.0 / step), v0, slope
 
 
 class TableLookup:

@@ -272,9 +272,9 @@ def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float,
     # oscillation about the local mean is scaled back: the mean is not blurred.) Johnson's map
     # per cell: kernels.map_cells.
     p_small = pressure_at(cs, (NY, NX))
-    inv_gain, share, d_eff, span, phi = kernels.map_cells(
-        var, q, aniso, p_small, np.float32(sigma * dx if blurred else 0.0), *share_args,
-        np.float32(S_MAX), *tables)
+    gain = np.exp(np.float32(-0.5) * np.square(q * np.float32(sigma * dx if blurred else 0.0)))
+    inv_gain, share, d_eff, span, phi = kernels.map_cells(var, q, aniso, p_small, gain, *share_args,
+                                                          np.float32(S_MAX), *tables)
     cell_px = np.float32(fs * fs)
     if blurred:
         te, tf, tf2_sum = kernels.restore_band(t, tq, kernels.widen(m_tq, NX), kernels.widen(inv_gain, NX),

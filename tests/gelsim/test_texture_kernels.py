@@ -168,11 +168,11 @@ def test_map_cells_are_johnsons_tables(blur_mm, support):
     yarn_comp, cloth = (0.0, None) if support is None else support
     has_cloth = cloth is not None
     cloth_k, ell = cloth if has_cloth else (1.0, 0.0)
+    gain = np.exp(-0.5 * (q * np.float32(blur_mm)) ** 2).astype(np.float32)
     inv_gain, share, d_eff, span, phi = K.map_cells(
-        var, q, aniso, p, np.float32(blur_mm), np.float32(e_star), np.float32(yarn_comp), has_cloth,
+        var, q, aniso, p, gain, np.float32(e_star), np.float32(yarn_comp), has_cloth,
         np.float32(cloth_k), np.float32(ell), np.float32(s_max), *segment_arrays())
     q64 = q.astype(np.float64)
-    gain = np.exp(-0.5 * (q64 * blur_mm) ** 2)
     sh = _share_ref(q64, e_star, yarn_comp, cloth_k if has_cloth else None, ell)
     depth = np.sqrt(var / gain**2) * (4.0 - (4.0 - 2.0 * np.sqrt(2.0)) * aniso)
     de = np.maximum(depth * sh, K.DEPTH_FLOOR_MM)
