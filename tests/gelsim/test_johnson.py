@@ -142,3 +142,27 @@ def test_wave_at_the_datasets_pixel(level, kind, wavelength):
     mm = load_profile("vitac").image.mm_per_px
     check(level, kind, wavelength, 0.4, px_per_period=int(round(wavelength / mm)), width_px=256, height_px=192,
           angle_deg=7.0)
+
+
+@pytest.mark.parametrize("nodes", [None, (0.01, 0.03, 0.1, 0.47, 1.0)])
+def test_segment_arrays_reproduce_the_tables(monkeypatch, nodes):
+    """The compiled kernels' uniform grid reads the tables' own interpolation: exactly when every
+    node lies on the grid (the shipped tables), to a sixteenth of a segment's curvature otherwise."""
+    tabs = johnson.map_tables()
+    if nodes is not None:
+        s = np.asarray(nodes)
+        tabs = {k: johnson.MapTable(s, *(np.interp(s, t.s, getattr(t, key)) for key in johnson.KEYS))
+                for k, t in tabs.items()}
+        monkeypatch.setattr(johnson, "map_tables", lambda: tabs)
+    lo, hi, per_step, v0, slope = johnson.segment_arrays.__wrapped__()
+    s = tabs["2d"].s
+    x = np.concatenate([s, np.linspace(s[0], s[-1], 777)])
+    u = (x - lo) * per_step
+    i = np.minimum(u.astype(int), v0.shape[2] - 1)
+    for kind_i, kind in enumerate(("1d", "2d")):
+        for k, key in enumerate(johnson.KEYS):
+            got = v0[kind_i, k, i] + slope[kind_i, k, i] * (u - i)
+            ref = np.interp(x, s, getattr(tabs[kind], key))
+            tol = 2e-6 if nodes is None else 0.02 * np.ptp(ref)
+            assert np.abs(got - ref).max() <= tol, (kind, key)
+            assert np.abs(got[:len(s)] - ref[:len(s)]).max() <= (2e-6 if nodes is None else tol)
