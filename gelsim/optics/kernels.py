@@ -82,3 +82,52 @@ def add_shot_noise_u8(frame, bank, oy, ox, gain, read_var, out):
             f = fr[x]
             var = max(fma32(f, gain, read_var), _LO)   # a dark pixel below 0 DN has no shot noise
             o[x] = _to_u8(f + np.sqrt(var) * zr[x])
+
+
+@njit(cache=True, nogil=True)
+def quad_coverage_strip(lo, nx, ny, cc, out):
+    """Coverage of convex quadrilaterals, one ``P x P`` patch each, side by side in ``out``.
+
+    ``lo``: int64 ``(N, 2)`` (x, y) px of each patch's top-left pixel; ``nx, ny``: float32 ``(N, 4)`` the
+    edges' inward unit normals; ``cc``: float32 ``(N, 4)`` each edge's offset plus half a pixel (so that
+    ``nx x + ny y + cc`` is 0.5 plus the signed distance of pixel centre ``(x, y)`` inside the edge);
+    ``out``: float32 ``(P, N P)``, written: patch ``i`` in columns ``i P:(i + 1) P``, its row ``r``,
+    column ``j`` the pixel ``(lo[i, 0] + j, lo[i, 1] + r)``. Coverage is the product over the edges,
+    in their order, of ``clip(nx x + ny y + cc, 0, 1)``, each product and sum rounded to float32 as
+    numpy's broadcast expression :func:`gelsim.optics.composite.marker_coverage` wrote it."""
+    p = out.shape[0]
+    n = lo.shape[0]
+    one = np.float32(1.0)
+    for i in range(n):
+        for r in range(p):
+            y = np.float32(lo[i, 1] + r)
+            o = out[r][i * p:(i + 1) * p]
+            for j in range(p):
+                x = np.float32(lo[i, 0] + j)
+                v = one
+                for k in range(4):
+                    d = (nx[i, k] * x + ny[i, k] * y) + cc[i, k]
+                    v *= min(max(d, _LO), one)
+                o[j] = v
+
+
+@njit(cache=True, nogil=True)
+def multiply_patches(frame, lo, factor):
+    """Multiply ``frame`` (float32 ``(H, W, C)``, in place) by patches of a factor, in patch order.
+
+    ``lo``: int64 ``(N, 2)`` (x, y) px of each patch's top-left pixel; ``factor``: float32 ``(P, N P)``,
+    patch ``i`` in columns ``i P:(i + 1) P`` (as :func:`quad_coverage_strip` lays them out), the same
+    for every channel. Parts of a patch beyond the frame are skipped."""
+    h, w, c = frame.shape
+    p = factor.shape[0]
+    for i in range(lo.shape[0]):
+        x0, y0 = lo[i, 0], lo[i, 1]
+        ax, ay = max(x0, 0), max(y0, 0)
+        bx, by = min(x0 + p, w), min(y0 + p, h)
+        for y in range(ay, by):
+            f = factor[y - y0][i * p + ax - x0:i * p + bx - x0]
+            row = frame[y]
+            for x in range(bx - ax):
+                fx = f[x]
+                for k in range(c):
+                    row[ax + x, k] *= fx

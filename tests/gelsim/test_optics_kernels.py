@@ -132,3 +132,121 @@ def test_noise_kernels_round_as_opencv_on_crafted_pixels():
     ref = _opencv_shot(frame, bank[:h, :w], _A, _C)
     assert (ref == 51).all()
     np.testing.assert_array_equal(_kernel(K.add_shot_noise_u8, frame, bank, 0, 0, _A, _C), ref)
+
+
+# ---------------------------------------------------------------- markers
+
+
+def _numpy_coverage(corners, pad_px):
+    """The former numpy marker_coverage: (origin, coverage (N, P, P))."""
+    n = corners.shape[0]
+    lo = np.floor(corners.min(axis=1)).astype(np.int64) - pad_px
+    size = int(np.ceil(corners.max(axis=1) - corners.min(axis=1)).max()) + 2 * pad_px + 2
+    grid = np.arange(size, dtype=np.float32)
+    xs = (lo[:, 0:1] + grid[None, :]).astype(np.float32)[:, None, :]
+    ys = (lo[:, 1:2] + grid[None, :]).astype(np.float32)[:, :, None]
+    v0 = corners
+    v1 = np.roll(corners, -1, axis=1)
+    e = v1 - v0
+    area2 = (v0[..., 0] * v1[..., 1] - v1[..., 0] * v0[..., 1]).sum(axis=1)
+    sign = np.where(area2 >= 0, 1.0, -1.0).astype(np.float32)[:, None]
+    length = np.maximum(np.linalg.norm(e, axis=-1), 1e-6)
+    nx, ny = -e[..., 1] * sign / length, e[..., 0] * sign / length
+    c = -(nx * v0[..., 0] + ny * v0[..., 1])
+    cov = np.ones((n, size, size), np.float32)
+    for k in range(4):
+        d = nx[:, k, None, None] * xs + ny[:, k, None, None] * ys
+        d += (c[:, k] + 0.5)[:, None, None]
+        np.clip(d, 0.0, 1.0, out=d)
+        cov *= d
+    return lo, cov
+
+
+def _opencv_apply(frame, lo, strip):
+    """The former apply_marker_factors: a 3-channel factor, one cv2.multiply per patch, in marker order."""
+    factor = cv2.merge([strip] * frame.shape[2])
+    h, w = frame.shape[:2]
+    p = factor.shape[0]
+    for i, (x0, y0) in enumerate(lo.tolist()):
+        ax, ay = max(x0, 0), max(y0, 0)
+        bx, by = min(x0 + p, w), min(y0 + p, h)
+        if bx <= ax or by <= ay:
+            continue
+        region = frame[ay:by, ax:bx]
+        cv2.multiply(region, factor[ay - y0:by - y0, i * p + ax - x0:i * p + bx - x0], region)
+
+
+def _quads(rng, n, h, w, size=9.0):
+    """Sheared, turned, stretched squares (either winding), some across the frame's edges, some overlapping."""
+    centres = np.column_stack([rng.uniform(-6, w + 6, n), rng.uniform(-6, h + 6, n)])
+    base = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]) * size / 2
+    quads = []
+    for c in centres:
+        a = np.eye(2) + rng.normal(0, 0.15, (2, 2))
+        q = base @ a.T
+        quads.append((q[::-1] if rng.random() < 0.3 else q) + c)
+    return np.asarray(quads, np.float32)
+
+
+@pytest.mark.parametrize("pad", [1, 3])
+def test_marker_coverage_equals_the_numpy_expression(pad):
+    from gelsim.optics.composite import coverage_strip, marker_coverage
+
+    rng = np.random.default_rng(pad)
+    for _ in range(5):
+        corners = _quads(rng, 40, 60, 80) + rng.random((40, 1, 2)).astype(np.float32)
+        lo_ref, ref = _numpy_coverage(corners, pad)
+        lo, cov = marker_coverage(corners, pad)
+        np.testing.assert_array_equal(lo, lo_ref)
+        np.testing.assert_array_equal(cov, ref)
+        _, strip = coverage_strip(corners, pad)
+        n, p, _ = ref.shape
+        np.testing.assert_array_equal(strip, ref.transpose(1, 0, 2).reshape(p, n * p))
+    assert 0.0 < ref.mean() < 1.0 and (ref == 1.0).any()
+
+
+@pytest.mark.parametrize("channels", [1, 3, 4])
+def test_multiply_patches_equals_a_multiply_per_patch(channels):
+    """Patches overlap and cross every edge of the frame: the products, in marker order, are OpenCV's."""
+    rng = np.random.default_rng(channels)
+    h, w = 50, 70
+    corners = _quads(rng, 60, h, w)
+    lo, cov = _numpy_coverage(corners, 2)
+    n, p, _ = cov.shape
+    strip = (1.0 - 0.8 * cov.transpose(1, 0, 2).reshape(p, n * p)).astype(np.float32)
+    strip += rng.normal(0, 1e-3, strip.shape).astype(np.float32)     # no factor exactly 1: order shows
+    frame = (rng.random((h, w, channels), dtype=np.float32) * 255).astype(np.float32)
+    ref = frame.copy()
+    _opencv_apply(ref, lo, strip)
+    got = frame.copy()
+    K.multiply_patches(got, lo, strip)
+    np.testing.assert_array_equal(got, ref)
+    assert (lo < 0).any() and (lo[:, 0] + p > w).any() and (lo[:, 1] + p > h).any()
+
+
+def test_marker_factors_darken_as_before():
+    """The renderer's markers: factors and darkened frame bit for bit those of the former OpenCV passes."""
+    from gelsim.optics.composite import apply_marker_factors, marker_factors
+
+    rng = np.random.default_rng(11)
+    h, w = 72, 96
+    for sigma in (0.0, 0.6, 1.3):
+        corners = _quads(rng, 50, h, w, size=7.0)
+        corners[0] += 1000.0                                 # wholly outside: left out
+        frame = (rng.random((h, w, 3), dtype=np.float32) * 255).astype(np.float32)
+        lo, factor = marker_factors(corners, 0.7, sigma, frame.shape)
+        r = int(math.ceil(3.0 * sigma)) if sigma > 0 else 0
+        inside = ((corners.max(axis=1) >= -r - 1) & (corners.min(axis=1) <= np.array([w, h]) + r)).all(axis=1)
+        assert not inside[0] and inside[1:].sum() > 40
+        lo_ref, cov = _numpy_coverage(corners[inside], r + 1)
+        n, p, _ = cov.shape
+        strip = np.ascontiguousarray(cov.transpose(1, 0, 2).reshape(p, n * p))
+        if r:
+            strip = cv2.GaussianBlur(strip, (2 * r + 1, 2 * r + 1), sigma, borderType=cv2.BORDER_REPLICATE)
+        strip = cv2.addWeighted(strip, -0.7, strip, 0.0, 1.0)
+        np.testing.assert_array_equal(lo, lo_ref)
+        np.testing.assert_array_equal(factor, strip)
+        ref = frame.copy()
+        _opencv_apply(ref, lo_ref, strip)
+        apply_marker_factors(frame, (lo, factor))
+        np.testing.assert_array_equal(frame, ref)
