@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from ..errors import GelsimError
+from .kernels import add_noise_u8, add_shot_noise_u8, multiply_patches, quad_coverage_strip
 
 def blur_radius_px(sigma_px: float) -> int:
     """Half-size of the Gaussian kernel used for ``sigma_px`` (3 sigma holds 99.7% of its weight)."""
@@ -53,12 +54,17 @@ def marker_coverage(corners: np.ndarray, pad_px: int) -> tuple[np.ndarray, np.nd
     corners of a sheared one. (cv2.fillPoly with LINE_AA was tried first: its squares
     came out 1.2 px too wide and moved in whole pixels.)
     """
+    lo, strip = coverage_strip(corners, pad_px)
+    p = strip.shape[0]
+    return lo, np.ascontiguousarray(strip.reshape(p, lo.shape[0], p).transpose(1, 0, 2))
+
+
+def coverage_strip(corners: np.ndarray, pad_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`marker_coverage` with the patches side by side: ``(origin, strip)``, float32 strip ``(P, N P)``
+    (patch ``i`` in columns ``i P:(i + 1) P``), the layout :func:`marker_factors` blurs in one call."""
     n = corners.shape[0]
     lo = np.floor(corners.min(axis=1)).astype(np.int64) - pad_px
     size = int(np.ceil(corners.max(axis=1) - corners.min(axis=1)).max()) + 2 * pad_px + 2
-    grid = np.arange(size, dtype=np.float32)
-    xs = (lo[:, 0:1] + grid[None, :]).astype(np.float32)[:, None, :]     # (N, 1, P)
-    ys = (lo[:, 1:2] + grid[None, :]).astype(np.float32)[:, :, None]     # (N, P, 1)
     v0 = corners
     v1 = np.roll(corners, -1, axis=1)
     e = v1 - v0                                                           # (N, 4, 2)
@@ -68,13 +74,11 @@ def marker_coverage(corners: np.ndarray, pad_px: int) -> tuple[np.ndarray, np.nd
     length = np.maximum(np.linalg.norm(e, axis=-1), 1e-6)
     nx, ny = -e[..., 1] * sign / length, e[..., 0] * sign / length       # (N, 4)
     c = -(nx * v0[..., 0] + ny * v0[..., 1])
-    cov = np.ones((n, size, size), np.float32)
-    for k in range(4):
-        d = nx[:, k, None, None] * xs + ny[:, k, None, None] * ys
-        d += (c[:, k] + 0.5)[:, None, None]
-        np.clip(d, 0.0, 1.0, out=d)
-        cov *= d
-    return lo, cov
+    strip = np.empty((size, n * size), np.float32)
+    # per pixel: the product over the edges of clip(nx x + ny y + c + 0.5, 0, 1), in one pass
+    quad_coverage_strip(lo, np.ascontiguousarray(nx, np.float32), np.ascontiguousarray(ny, np.float32),
+                        np.ascontiguousarray(c + np.float32(0.5), np.float32), strip)
+    return lo, strip
 
 
 def darken_markers(frame: np.ndarray, corners: np.ndarray, darkness: float, blur_sigma_px: float) -> None:
@@ -89,44 +93,33 @@ def darken_markers(frame: np.ndarray, corners: np.ndarray, darkness: float, blur
 def marker_factors(corners: np.ndarray, darkness: float, blur_sigma_px: float,
                    shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray] | None:
     """The factors :func:`darken_markers` multiplies a frame of ``shape`` (H, W, C) by: ``(origin, factor)``
-    with int64 ``(N, 2)`` (x, y) of each marker's patch's top-left pixel and float32 ``(P, N P, C)``
-    ``1 - darkness * blur(coverage)``, the ``P x P`` patches side by side; None if no marker's blurred
-    patch reaches the frame. Depends on nothing else, so a frame whose markers did not move can reuse it."""
+    with int64 ``(N, 2)`` (x, y) of each marker's patch's top-left pixel and float32 ``(P, N P)``
+    ``1 - darkness * blur(coverage)``, the ``P x P`` patches side by side, the same for every channel;
+    None if no marker's blurred patch reaches the frame. Depends on nothing else, so a frame whose
+    markers did not move can reuse it."""
     h, w = shape[:2]
     radius = blur_radius_px(blur_sigma_px)
     inside = ((corners.max(axis=1) >= -radius - 1) & (corners.min(axis=1) <= np.array([w, h]) + radius)).all(axis=1)
     corners = corners[inside]
     if corners.shape[0] == 0:
         return None
-    lo, cov = marker_coverage(corners, radius + 1)
-    n, p, _ = cov.shape
     # side by side in one strip: each patch has >= radius zero columns at both ends,
     # so the blur does not mix neighbouring patches
-    strip = np.ascontiguousarray(cov.transpose(1, 0, 2).reshape(p, n * p))
+    lo, strip = coverage_strip(corners, radius + 1)
     if radius:
         strip = gaussian_blur(strip, blur_sigma_px)
     strip = cv2.addWeighted(strip, -darkness, strip, 0.0, 1.0)        # 1 - darkness * coverage
-    # repeated to 3 channels once: a same-shape multiply per patch is 3x faster than broadcasting
-    factor = cv2.merge([strip] * shape[2]) if shape[2] <= 4 else np.repeat(strip[..., None], shape[2], axis=-1)
-    return lo, factor
+    return lo, strip
 
 
 def apply_marker_factors(frame: np.ndarray, factors: tuple[np.ndarray, np.ndarray] | None) -> None:
-    """Multiply ``frame`` (float32 ``(H, W, C)``, in place) by :func:`marker_factors`' patches."""
+    """Multiply ``frame`` (float32 C-contiguous ``(H, W, C)``, in place) by :func:`marker_factors`' patches,
+    in marker order (one pass of :func:`~gelsim.optics.kernels.multiply_patches`: a Python loop of
+    OpenCV multiplies over about 100 patches took 0.4 ms per frame)."""
     if factors is None:
         return
     lo, factor = factors
-    h, w = frame.shape[:2]
-    p = factor.shape[0]
-    for i, (x0, y0) in enumerate(lo.tolist()):
-        ax, ay = max(x0, 0), max(y0, 0)
-        bx, by = min(x0 + p, w), min(y0 + p, h)
-        if bx <= ax or by <= ay:
-            continue
-        c0 = i * p
-        region = frame[ay:by, ax:bx]
-        # cv2: half the time of np.multiply on these small strided views, same products
-        cv2.multiply(region, factor[ay - y0:by - y0, c0 + ax - x0:c0 + bx - x0], region)
+    multiply_patches(frame, lo, factor)
 
 
 def to_uint8(frame: np.ndarray) -> np.ndarray:
@@ -176,13 +169,23 @@ class NoiseBank:
         return self.bank[k][oy:oy + h, ox:ox + w]
 
     def apply(self, frame: np.ndarray, seed: int | np.random.Generator) -> np.ndarray:
-        """``frame`` (float32 ``(H, W, 3)`` DN, not modified) plus noise, as a new uint8 array."""
-        z = self.pick(seed)
+        """``frame`` (float32 ``(H, W, 3)`` DN, not modified) plus noise, as a new uint8 array.
+
+        One fused pass (:mod:`gelsim.optics.kernels`) reads the frame and the noise once: the same
+        values as OpenCV's ``addWeighted`` into 8 bits (constant sigma) or its five passes (shot
+        noise), in a third (constant sigma) to a fifth (shot noise) of their time."""
+        k, oy, ox = self.offsets(seed)
+        h, w = self.shape
+        frame = np.ascontiguousarray(frame, dtype=np.float32)
+        if frame.shape != (h, w, 3):
+            raise GelsimError(f"frame has shape {frame.shape}; the noise bank is for {(h, w, 3)}")
+        bank = self.bank[k]
+        flat, bank2 = frame.reshape(h, w * 3), bank.reshape(bank.shape[0], -1)
+        out = np.empty((h, w, 3), np.uint8)
         if self.shot_gain == 0:
-            # constant sigma: one saturating pass (4x faster than the general per-pixel sigma)
-            return cv2.addWeighted(frame, 1.0, z, math.sqrt(self.read_var), 0.0, dtype=cv2.CV_8U)
-        var = cv2.addWeighted(frame, self.shot_gain, frame, 0.0, self.read_var)
-        cv2.max(var, 0.0, var)   # a dark pixel below 0 DN has no shot noise
-        cv2.sqrt(var, var)
-        cv2.multiply(var, z, var)
-        return cv2.add(frame, var, dtype=cv2.CV_8U)
+            # the scalars are float32, as OpenCV's vector code uses them
+            add_noise_u8(flat, bank2, oy, 3 * ox, np.float32(math.sqrt(self.read_var)), out.reshape(h, w * 3))
+        else:
+            add_shot_noise_u8(flat, bank2, oy, 3 * ox, np.float32(self.shot_gain), np.float32(self.read_var),
+                              out.reshape(h, w * 3))
+        return out
