@@ -28,6 +28,7 @@ from typing import Protocol, runtime_checkable
 
 import cv2
 import numpy as np
+from numba import njit
 
 from .errors import GelsimError
 
@@ -263,9 +264,20 @@ class HeightPatch:
             # gel leans towards (small angles: a plane of slope tan(tilt)).
             xs = (np.arange(W, dtype=np.float32) - cu) * s
             ys = (np.arange(H, dtype=np.float32) - cv) * s
-            out += np.float32(math.tan(math.radians(tilt_deg[1]))) * xs[None, :]
-            out += np.float32(math.tan(math.radians(tilt_deg[0]))) * ys[:, None]
+            _add_plane(out, np.float32(math.tan(math.radians(tilt_deg[1]))), xs,
+                       np.float32(math.tan(math.radians(tilt_deg[0]))), ys)
         return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _add_plane(out, ax, xs, ay, ys) -> None:
+    """``out += ax * xs[None, :] + ay * ys[:, None]`` in place, in one pass (numpy took two, 5x the
+    time at 960x720), with numpy's float32 rounding and order: (out + ax x) + ay y."""
+    for i in range(out.shape[0]):
+        by = ay * ys[i]
+        row = out[i]
+        for j in range(out.shape[1]):
+            row[j] = (row[j] + ax * xs[j]) + by
 
 
 def travel_patch(obj: TouchedObject, motion, profile, mm_per_px: float, *, seed: int,

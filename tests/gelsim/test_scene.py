@@ -129,3 +129,17 @@ def test_travel_patch_from_poses_covers_every_frame_and_is_smaller(fabric, vitac
     if yaws[1] - yaws[0] < 1.0:
         circle = travel_patch(FabricObject(fabric), m, vitac, mm, seed=3)
         assert p.heights_mm.size < 0.6 * circle.heights_mm.size
+
+
+def test_tilt_plane_is_numpys_two_passes_exactly():
+    from gelsim.scene import _add_plane
+
+    rng = np.random.default_rng(3)
+    out = rng.random((37, 53), dtype=np.float32)
+    xs, ys = rng.normal(size=53).astype(np.float32), rng.normal(size=37).astype(np.float32)
+    ax, ay = np.float32(0.0349), np.float32(-0.0175)
+    ref = out.copy()
+    ref += ax * xs[None, :]
+    ref += ay * ys[:, None]
+    _add_plane(out, ax, xs, ay, ys)
+    assert np.array_equal(out, ref)
