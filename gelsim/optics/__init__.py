@@ -38,7 +38,7 @@ import numpy as np
 
 from ..errors import GelsimError, check_choice
 from .composite import (NoiseBank, apply_marker_factors, blur_radius_px, gaussian_blur, marker_corners,
-                        marker_factors, to_uint8)
+                        marker_factors, to_uint8, to_uint8_rows)
 from .field import background_float, light_maps
 from .shader import Shader, shader_class, work_array
 
@@ -135,15 +135,19 @@ class Renderer:
 
     def render_float(self, depth_mm: np.ndarray | None, markers=None) -> np.ndarray:
         """The noiseless, unquantised frame: float32 ``(H, W, 3)`` DN (may leave 0-255 before saturation)."""
-        return self._compose(depth_mm, markers).copy()
+        return self._compose(depth_mm, markers)[0].copy()
 
     def _work(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
         """A float32 work array kept between frames (:func:`~gelsim.optics.shader.work_array`)."""
         return work_array(self._bufs, name, shape)
 
-    def _compose(self, depth_mm, markers) -> np.ndarray:
-        """Like :meth:`render_float`, but returns the cached background itself, or a work buffer
-        that the next frame overwrites: callers must not modify or keep the result."""
+    def _compose(self, depth_mm, markers, finish=None) -> tuple[np.ndarray, bool]:
+        """Like :meth:`render_float`, but returns ``(frame, finished)``: the cached background itself, or a
+        work buffer that the next frame overwrites (callers must not modify or keep it), and whether
+        ``finish(rows, y0)`` (optional) was called on every band of rows (float32 ``(n, W, 3)``, the
+        frame's rows ``y0:y0 + n``) of a shaded frame, its markers darkened, while the band was in the
+        cache (the frame is then composed nowhere else) (see :meth:`Shader.compose`; only without
+        supersampling: a supersampled frame is finished after its resize)."""
         depth = check_depth(depth_mm, self.profile.shape)
         corners = marker_corners(markers) if self.profile.markers.enabled else None
         s = self.supersample
@@ -156,14 +160,25 @@ class Renderer:
                 corners = s * (corners + 0.5) - 0.5
         bg = self._bg_fine
         frame = self._work("frame", bg.shape)
+        # the markers' factors depend on their corners alone: computed first, so that bands can use them
+        factors = None if corners is None else self._marker_factors(corners, frame.shape)
+        band_finish = None
+        if finish is not None and s == 1:
+            def band_finish(rows: np.ndarray, y0: int, y1: int) -> None:
+                apply_marker_factors(rows, factors, y0)
+                finish(rows, y0)
         fresh = True                                 # frame does not hold this frame's shading
         if depth is not None:
-            fresh = not self._shader.compose(frame, bg, depth, blur_radius_px(self._blur_fine), self._blur_fine,
-                                             gaussian_blur)
+            # bands finished as they are composed need no frame: the shader composes them in a
+            # band-sized buffer, and the frame buffer keeps what it held (the flat gel, say)
+            fresh = not self._shader.compose(None if band_finish is not None else frame, bg, depth,
+                                             blur_radius_px(self._blur_fine), self._blur_fine, gaussian_blur,
+                                             band_finish)
         if fresh and corners is None:
-            return self._bg
-        factors = None if corners is None else self._marker_factors(corners, frame.shape)
+            return self._bg, False
         if not fresh:
+            if band_finish is not None:
+                return frame, True
             self._frame_flat = _STALE
             apply_marker_factors(frame, factors)
         elif self._frame_flat is not factors:
@@ -174,7 +189,7 @@ class Renderer:
             self._frame_flat = factors
         if s > 1:
             frame = cv2.resize(frame, self.profile.shape[::-1], interpolation=cv2.INTER_AREA)
-        return frame
+        return frame, False
 
     def _marker_factors(self, corners: np.ndarray, shape: tuple[int, int, int]):
         """:func:`~gelsim.optics.composite.marker_factors` of ``corners`` (shading-resolution px), reused
@@ -195,8 +210,24 @@ class Renderer:
         (x, y) px, such an array, or None; ``seed``: picks this frame's noise
         (same seed, same frame); ``noise``: False for a noiseless frame.
         """
-        frame = self._compose(depth_mm, markers)
-        if noise and self._noise.active:
+        noisy = noise and self._noise.active
+        out = np.empty(self.profile.shape + (3,), np.uint8)
+        draw = []                                    # the noise's offsets, drawn at the first band
+
+        def finish(rows: np.ndarray, y0: int) -> None:
+            # each band goes to 8 bits while its rows are in the cache (a 960x720 frame's float32
+            # copy is 8 MB: the whole-frame pass read it back from memory)
+            if not noisy:
+                to_uint8_rows(rows, out, y0)
+                return
+            if not draw:
+                draw.append(self._noise.offsets(seed))
+            self._noise.apply_rows(rows, draw[0], out, y0)
+
+        frame, finished = self._compose(depth_mm, markers, finish)
+        if finished:
+            return out
+        if noisy:
             return self._noise.apply(frame, seed)
         return to_uint8(frame)
 

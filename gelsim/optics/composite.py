@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from ..errors import GelsimError
-from .kernels import add_noise_u8, add_shot_noise_u8, multiply_patches, quad_coverage_strip
+from .kernels import add_noise_u8, add_shot_noise_u8, multiply_patches_rows, quad_coverage_strip
 
 def blur_radius_px(sigma_px: float) -> int:
     """Half-size of the Gaussian kernel used for ``sigma_px`` (3 sigma holds 99.7% of its weight)."""
@@ -112,14 +112,21 @@ def marker_factors(corners: np.ndarray, darkness: float, blur_sigma_px: float,
     return lo, strip
 
 
-def apply_marker_factors(frame: np.ndarray, factors: tuple[np.ndarray, np.ndarray] | None) -> None:
+def apply_marker_factors(frame: np.ndarray, factors: tuple[np.ndarray, np.ndarray] | None, y0: int = 0) -> None:
     """Multiply ``frame`` (float32 C-contiguous ``(H, W, C)``, in place) by :func:`marker_factors`' patches,
     in marker order (one pass of :func:`~gelsim.optics.kernels.multiply_patches`: a Python loop of
-    OpenCV multiplies over about 100 patches took 0.4 ms per frame)."""
+    OpenCV multiplies over about 100 patches took 0.4 ms per frame). ``y0``: the frame row (px) that
+    ``frame``'s first row is, for a band of a frame (the same values there as the whole frame's pass)."""
     if factors is None:
         return
     lo, factor = factors
-    multiply_patches(frame, lo, factor)
+    multiply_patches_rows(frame, lo, factor, y0)
+
+
+def to_uint8_rows(rows: np.ndarray, out: np.ndarray, y0: int) -> None:
+    """:func:`to_uint8` of a band of a frame: ``rows`` float32 ``(n, W, 3)`` DN, the frame's rows ``y0:y0 + n``,
+    into the same rows of ``out`` (uint8 ``(H, W, 3)``)."""
+    cv2.add(rows, (0.0, 0.0, 0.0, 0.0), out[y0:y0 + rows.shape[0]], dtype=cv2.CV_8U)
 
 
 def to_uint8(frame: np.ndarray) -> np.ndarray:
@@ -174,18 +181,27 @@ class NoiseBank:
         One fused pass (:mod:`gelsim.optics.kernels`) reads the frame and the noise once: the same
         values as OpenCV's ``addWeighted`` into 8 bits (constant sigma) or its five passes (shot
         noise), in a third (constant sigma) to a fifth (shot noise) of their time."""
-        k, oy, ox = self.offsets(seed)
         h, w = self.shape
         frame = np.ascontiguousarray(frame, dtype=np.float32)
         if frame.shape != (h, w, 3):
             raise GelsimError(f"frame has shape {frame.shape}; the noise bank is for {(h, w, 3)}")
-        bank = self.bank[k]
-        flat, bank2 = frame.reshape(h, w * 3), bank.reshape(bank.shape[0], -1)
         out = np.empty((h, w, 3), np.uint8)
+        self.apply_rows(frame, self.offsets(seed), out, 0)
+        return out
+
+    def apply_rows(self, rows: np.ndarray, offsets: tuple[int, int, int], out: np.ndarray, y0: int) -> None:
+        """:meth:`apply` on a band of a frame with the draw ``offsets`` (:meth:`offsets`): ``rows`` float32
+        C-contiguous ``(n, W, 3)`` DN, the frame's rows ``y0:y0 + n``; ``out`` uint8 C-contiguous
+        ``(H, W, 3)``, those rows written. Each pixel's value depends on that pixel alone, so a frame
+        finished band by band, while its rows are in the cache, equals the whole frame's :meth:`apply`."""
+        k, oy, ox = offsets
+        h, w = self.shape
+        n = rows.shape[0]
+        bank = self.bank[k]
+        flat, bank2 = rows.reshape(n, w * 3), bank.reshape(bank.shape[0], -1)
+        dst = out.reshape(h, w * 3)[y0:y0 + n]
         if self.shot_gain == 0:
             # the scalars are float32, as OpenCV's vector code uses them
-            add_noise_u8(flat, bank2, oy, 3 * ox, np.float32(math.sqrt(self.read_var)), out.reshape(h, w * 3))
+            add_noise_u8(flat, bank2, oy + y0, 3 * ox, np.float32(math.sqrt(self.read_var)), dst)
         else:
-            add_shot_noise_u8(flat, bank2, oy, 3 * ox, np.float32(self.shot_gain), np.float32(self.read_var),
-                              out.reshape(h, w * 3))
-        return out
+            add_shot_noise_u8(flat, bank2, oy + y0, 3 * ox, np.float32(self.shot_gain), np.float32(self.read_var), dst)

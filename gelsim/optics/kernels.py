@@ -118,15 +118,24 @@ def multiply_patches(frame, lo, factor):
     ``lo``: int64 ``(N, 2)`` (x, y) px of each patch's top-left pixel; ``factor``: float32 ``(P, N P)``,
     patch ``i`` in columns ``i P:(i + 1) P`` (as :func:`quad_coverage_strip` lays them out), the same
     for every channel. Parts of a patch beyond the frame are skipped."""
-    h, w, c = frame.shape
+    multiply_patches_rows(frame, lo, factor, 0)
+
+
+@njit(cache=True, nogil=True)
+def multiply_patches_rows(rows, lo, factor, y_lo):
+    """:func:`multiply_patches` on a band of a frame: ``rows`` float32 ``(n, W, C)`` holds the frame's rows
+    ``y_lo:y_lo + n`` (px), the patches' parts on those rows multiply it. The same products, pixel by
+    pixel, as the whole frame's pass, so a frame finished band by band (while its rows are in the
+    cache) gets the same values."""
+    n, w, c = rows.shape
     p = factor.shape[0]
     for i in range(lo.shape[0]):
         x0, y0 = lo[i, 0], lo[i, 1]
-        ax, ay = max(x0, 0), max(y0, 0)
-        bx, by = min(x0 + p, w), min(y0 + p, h)
+        ax, ay = max(x0, 0), max(y0, y_lo)
+        bx, by = min(x0 + p, w), min(y0 + p, y_lo + n)
         for y in range(ay, by):
             f = factor[y - y0][i * p + ax - x0:i * p + bx - x0]
-            row = frame[y]
+            row = rows[y - y_lo]
             for x in range(bx - ax):
                 fx = f[x]
                 for k in range(c):

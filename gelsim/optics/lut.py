@@ -534,7 +534,7 @@ class LutShader(Shader):
         return out
 
     def compose(self, frame: np.ndarray, bg: np.ndarray, depth_mm: np.ndarray, margin_px: int,
-                blur_sigma_px: float, blur) -> bool:
+                blur_sigma_px: float, blur, finish=None) -> bool:
         """The renderer's fused pass: ``frame = bg + blur(table change) + shadows`` (float32 ``(H, W, 3)``
         DN, written in place); False (``frame`` untouched) for a flat gel.
 
@@ -542,9 +542,14 @@ class LutShader(Shader):
         added in bands of rows, each with the blur's radius of extra rows on both sides, so that its
         work arrays stay in the cache: the frame's passes are memory-bound at 960x720. The shadows
         (blurred by the camera already, see :meth:`parts`) and the depth and halo terms are computed
-        first, over their boxes, and added to each band's rows right after the table's change (their
-        rows outside the table's box at the end): the same sums, in the same order, as adding them
-        to the whole frame afterwards."""
+        first, over their boxes, and added to each band's rows right after the table's change: the
+        same sums, in the same order, as adding them to the whole frame afterwards. The rows above
+        and below the table's box, and the columns beside it, are the background copied band by
+        band (with those terms added). ``finish(rows, y0, y1)`` (optional) is called on each band of
+        frame rows ``y0:y1`` once its values are final, in row order, while the band is in the cache:
+        the renderer darkens its markers and adds the noise there (see :meth:`Shader.compose`). With
+        ``finish`` and ``frame`` None the bands are composed in one band-sized work buffer: the
+        frame's 8 MB float32 copy is never written to memory."""
         roi, big = self._boxes(depth_mm, margin_px, blur_sigma_px)
         if roi is None:
             return False
@@ -557,14 +562,32 @@ class LutShader(Shader):
         halo = self._coarse_crop(depth_mm)
         if halo is not None:
             parts.append(halo)
-        _copy_outside(frame, bg, roi)            # the bands below write the box
+        band = self.BAND_ROWS
+        width = bg.shape[1]
+
+        def rows(a: int, b: int) -> np.ndarray:
+            """Where the frame's rows a:b are composed: the frame's own, or the band work buffer."""
+            return frame[a:b] if frame is not None else self._buffer("band_frame", (band, width, 3))[:b - a]
+
+        def outside(r0: int, r1: int) -> None:
+            """Frame rows r0:r1 outside the box's rows: the background plus the parts, band by band."""
+            for a in range(r0, r1, band):
+                b = min(r1, a + band)
+                dst = rows(a, b)
+                np.copyto(dst, bg[a:b])
+                for part in parts:
+                    _add_rows(dst, *part, a, b, a)
+                if finish is not None:
+                    finish(dst, a, b)
+
+        top, bottom = roi[0].start, roi[0].stop
+        c0, c1 = roi[1].start, roi[1].stop
+        outside(0, top)
         d = depth_mm[roi]
         h, w = d.shape
         offx, offy = self._offx[roi], self._offy[roi]
-        fr, bgr = frame[roi], bg[roi]
+        bgr = bg[roi]
         r = int(math.ceil(3.0 * blur_sigma_px)) if blur_sigma_px > 0 else 0
-        band = self.BAND_ROWS
-        top = roi[0].start
         for y0 in range(0, h, band):
             y1 = min(h, y0 + band)
             l0, l1 = max(0, y0 - r), min(h, y1 + r)          # table rows the blur reads
@@ -572,12 +595,16 @@ class LutShader(Shader):
             lut = self._buffer("band_lut", (l1 - l0, w, 3))
             self._shade_band(d[a:b], l0 - a, l1 - l0, offx[l0:l1], offy[l0:l1], lut, self._band_wts(roi, l0, l1))
             sm = blur(lut, blur_sigma_px, self._buffer("band_blur", lut.shape))
-            cv2.add(bgr[y0:y1], sm[y0 - l0:y1 - l0], fr[y0:y1])
+            dst = rows(top + y0, top + y1)
+            for cols in (slice(0, c0), slice(c1, width)):               # the background beside the box
+                if cols.start < cols.stop:
+                    np.copyto(dst[:, cols], bg[top + y0:top + y1, cols])
+            cv2.add(bgr[y0:y1], sm[y0 - l0:y1 - l0], dst[:, c0:c1])
             for part in parts:                               # while the band's rows are in the cache
-                _add_rows(frame, *part, top + y0, top + y1)
-        for part in parts:                                   # their rows above and below the box
-            _add_rows(frame, *part, 0, top)
-            _add_rows(frame, *part, roi[0].stop, frame.shape[0])
+                _add_rows(dst, *part, top + y0, top + y1, top + y0)
+            if finish is not None:
+                finish(dst, top + y0, top + y1)
+        outside(bottom, bg.shape[0])
         return True
 
     def shade(self, d: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
@@ -792,23 +819,13 @@ def adjust_channels(t: dict, channel_gain, rotation_deg) -> dict:
     return t
 
 
-def _copy_outside(dst: np.ndarray, src: np.ndarray, box) -> None:
-    """Copy ``src`` into ``dst`` (same shape) everywhere but the box (row and column slices with explicit
-    bounds): the rows above and below it and the columns beside it (a box covers most of a pressed
-    frame, and a copy of a whole 960x720 frame took 0.6 ms)."""
-    (r0, r1), (c0, c1) = (box[0].start, box[0].stop), (box[1].start, box[1].stop)
-    for part in ((slice(0, r0), slice(None)), (slice(r1, None), slice(None)),
-                 (slice(r0, r1), slice(0, c0)), (slice(r0, r1), slice(c1, None))):
-        if dst[part].size:
-            np.copyto(dst[part], src[part])
-
-
-def _add_rows(frame: np.ndarray, box, grid: np.ndarray, factor: int, y0: int, y1: int) -> None:
+def _add_rows(frame: np.ndarray, box, grid: np.ndarray, factor: int, y0: int, y1: int, origin: int = 0) -> None:
     """Add the rows ``y0:y1`` (of the frame) of a change over ``box`` of ``frame``, given on a grid: float32
-    ``grid`` ``(h', w', 3)`` upsampled ``factor`` times bilinearly (cv2.resize) and cut to the box."""
+    ``grid`` ``(h', w', 3)`` upsampled ``factor`` times bilinearly (cv2.resize) and cut to the box.
+    ``origin``: the frame row that ``frame``'s first row is (a band of the frame: 0 for the whole)."""
     a, b = max(y0, box[0].start), min(y1, box[0].stop)
     if a < b:
-        region = frame[a:b, box[1]]
+        region = frame[a - origin:b - origin, box[1]]
         top = box[0].start
         cv2.add(region, _upsample_rows(grid, factor, a - top, b - top, region.shape[1]), region)
 

@@ -71,13 +71,21 @@ class Shader(ABC):
         return None if res is None else [(res[0], res[1], False)]
 
     def compose(self, frame: np.ndarray, bg: np.ndarray, depth_mm: np.ndarray, margin_px: int,
-                blur_sigma_px: float, blur: Callable[..., np.ndarray]) -> bool:
+                blur_sigma_px: float, blur: Callable[..., np.ndarray],
+                finish: Callable[[np.ndarray, int, int], None] | None = None) -> bool:
         """Write ``bg + blur(change)`` into ``frame`` (both float32 ``(H, W, 3)`` DN); False, with ``frame``
-        untouched, for a flat gel. ``blur(img, sigma_px, dst)`` is the camera blur. Default: the
-        :meth:`parts`, each blurred unless it says it is, added to the background."""
+        untouched, for a flat gel. ``blur(img, sigma_px, dst)`` is the camera blur. ``finish(rows, y0, y1)``
+        (optional, only if True is returned): called once per band of frame rows ``y0:y1`` whose values
+        are final, ``rows`` float32 ``(y1 - y0, W, 3)`` DN holding them (writable), in row order, the bands
+        covering the frame (the renderer darkens the markers and adds the noise there). With ``finish``,
+        ``frame`` may be None: the rows are then written to work buffers of the shader's own and exist
+        only as handed to ``finish``. Default: the :meth:`parts`, each blurred unless it says it is,
+        added to the background, then one ``finish`` of the whole frame."""
         parts = self.parts(depth_mm, margin_px, blur_sigma_px)
         if parts is None:
             return False
+        if frame is None:
+            frame = self._buffer("frame", bg.shape)
         fresh = True                       # frame does not hold the background yet
         for roi, change, blurred in parts:
             if not blurred:
@@ -92,6 +100,8 @@ class Shader(ABC):
             fresh = False
         if fresh:
             np.copyto(frame, bg)
+        if finish is not None:
+            finish(frame, 0, frame.shape[0])
         return True
 
     def close(self) -> None:

@@ -616,3 +616,57 @@ def test_a_renderer_reused_over_a_sequence_draws_what_fresh_ones_draw(small):
         fresh = Renderer(small, seed=3)
         np.testing.assert_array_equal(r.render_float(depth, mk), fresh.render_float(depth, mk))
         np.testing.assert_array_equal(r.render(depth, mk, seed=i), fresh.render(depth, mk, seed=i))
+
+
+@pytest.mark.parametrize("shot_gain", [0.0, 0.03])
+@pytest.mark.parametrize("band_rows", [7, 96])
+def test_frames_finished_band_by_band_equal_the_whole_frame_passes(small, monkeypatch, shot_gain, band_rows):
+    """render() darkens the markers, adds the noise and quantises each band of a pressed frame as it is
+    composed (in a band-sized buffer): bit for bit the whole-frame passes over render_float's frame,
+    for presses at the frame's edges and in its middle (rows above and below the shaded box), markers
+    at rest and moved, with and without noise."""
+    from gelsim.optics.composite import to_uint8
+    from gelsim.optics.lut import LutShader
+
+    monkeypatch.setattr(LutShader, "BAND_ROWS", band_rows)
+    prof = replace(small, noise={"shot_gain": shot_gain})
+    r = Renderer(prof, seed=2)
+    corners, _ = marker_grid(prof)
+    rng = np.random.default_rng(band_rows)
+    fw, fh = prof.field_mm
+    n_banded = 0
+    for i, centre in enumerate([(0.0, 0.0), (0.3 * fw, -0.45 * fh), (-0.4 * fw, 0.5 * fh), (0.1, 0.2)]):
+        d = sphere_dent(prof, 1.5 + i, 0.2 + 0.1 * i, center_mm=centre)
+        mk = corners if i % 2 == 0 else corners + rng.normal(0, 1.5, corners.shape).astype(np.float32)
+        want = r.render_float(d, mk)
+        np.testing.assert_array_equal(r.render(d, mk, seed=i), r._noise.apply(want, i))
+        np.testing.assert_array_equal(r.render(d, mk, noise=False), to_uint8(want))
+        n_banded += r._compose(d, mk, lambda rows, y0: None)[1]
+    assert n_banded == 4                                          # every press took the banded path
+
+
+def test_lut_compose_hands_every_row_to_finish_once_in_order(small, monkeypatch):
+    """LutShader.compose's finish sees each frame row once, in order, with the values that the frame
+    gets without finish, whether the bands are the frame's own rows or a band buffer (frame None)."""
+    from gelsim.optics.composite import blur_radius_px, gaussian_blur
+    from gelsim.optics.lut import LutShader
+
+    monkeypatch.setattr(LutShader, "BAND_ROWS", 11)
+    r = Renderer(small, seed=0)
+    sh, bg = r._shader, r.background_float()
+    sigma = small.camera.blur_sigma_px
+    d = sphere_dent(small, 2.0, 0.4, center_mm=(1.0, -0.5))
+    whole = np.zeros_like(bg)
+    assert sh.compose(whole, bg, d, blur_radius_px(sigma), sigma, gaussian_blur)
+    for frame in (np.zeros_like(bg), None):
+        seen, got = [], np.full_like(bg, np.nan)
+
+        def finish(rows, y0, y1):
+            assert rows.shape == (y1 - y0,) + bg.shape[1:]
+            seen.append((y0, y1))
+            got[y0:y1] = rows
+
+        assert sh.compose(frame, bg, d, blur_radius_px(sigma), sigma, gaussian_blur, finish)
+        assert [a for a, _ in seen] == [0] + [b for _, b in seen[:-1]] and seen[-1][1] == bg.shape[0]
+        assert len(seen) > bg.shape[0] // 11                      # rows above, in and below the box
+        np.testing.assert_array_equal(got, whole)

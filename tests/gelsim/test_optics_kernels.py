@@ -250,3 +250,43 @@ def test_marker_factors_darken_as_before():
         _opencv_apply(ref, lo_ref, strip)
         apply_marker_factors(frame, (lo, factor))
         np.testing.assert_array_equal(frame, ref)
+
+
+def test_multiply_patches_band_by_band_equals_the_whole_frame():
+    """The renderer darkens markers band by band (multiply_patches_rows on each band's own rows): the
+    same products as one pass over the frame, whatever the bands' height, patches crossing their edges."""
+    rng = np.random.default_rng(5)
+    h, w = 50, 70
+    corners = _quads(rng, 60, h, w)
+    lo, cov = _numpy_coverage(corners, 2)
+    n, p, _ = cov.shape
+    strip = (1.0 - 0.8 * cov.transpose(1, 0, 2).reshape(p, n * p)).astype(np.float32)
+    strip += rng.normal(0, 1e-3, strip.shape).astype(np.float32)
+    frame = (rng.random((h, w, 3), dtype=np.float32) * 255).astype(np.float32)
+    ref = frame.copy()
+    K.multiply_patches(ref, lo, strip)
+    assert (ref != frame).mean() > 0.3
+    for band in (1, 3, 7, 16, h):
+        got = frame.copy()
+        for y0 in range(0, h, band):
+            rows = np.ascontiguousarray(got[y0:y0 + band])    # a separate buffer, as the renderer's band
+            K.multiply_patches_rows(rows, lo, strip, y0)
+            got[y0:y0 + band] = rows
+        np.testing.assert_array_equal(got, ref)
+
+
+@pytest.mark.parametrize("shot_gain", [0.0, 0.03])
+def test_noise_band_by_band_equals_the_whole_frame(shot_gain):
+    """NoiseBank.apply_rows on bands (separate buffers, as the renderer's) writes what apply writes."""
+    rng = np.random.default_rng(6)
+    h, w = 37, 53
+    nb = NoiseBank((h, w), 2.0, shot_gain, seed=3, frames=2, pad_px=PAD)
+    frame = _frame(rng, h, w)
+    for seed in range(4):
+        ref = nb.apply(frame, seed)
+        for band in (1, 5, 16):
+            out = np.zeros((h, w, 3), np.uint8)
+            off = nb.offsets(seed)
+            for y0 in range(0, h, band):
+                nb.apply_rows(np.ascontiguousarray(frame[y0:y0 + band]), off, out, y0)
+            np.testing.assert_array_equal(out, ref)

@@ -101,6 +101,11 @@ def test_default_parts_and_compose():
     want = bg.copy()
     want[roi] += gaussian_blur(np.full((6, 8, 3), 10.0, np.float32), 1.0)
     np.testing.assert_allclose(frame, want, atol=1e-5)
+    # with finish: one call with the whole frame's rows, into a buffer of the shader's own if frame is None
+    calls = []
+    assert s.compose(None, bg, pressed, 0, 1.0, gaussian_blur, lambda rows, y0, y1: calls.append((rows.copy(), y0, y1)))
+    assert len(calls) == 1 and calls[0][1:] == (0, 16)
+    np.testing.assert_array_equal(calls[0][0], frame)
     assert s.close() is None
 
 
