@@ -173,6 +173,10 @@ class MapTable:
     lam: np.ndarray
 
 
+# The tables' columns besides s, in the order segment_arrays stacks them.
+KEYS = ("contact_fraction", "kept", "zeta", "lam")
+
+
 @functools.cache
 def map_tables() -> dict[str, MapTable]:
     """The '1d' and '2d' tables from ``assets/johnson.toml`` (both on one grid of s)."""
@@ -182,7 +186,7 @@ def map_tables() -> dict[str, MapTable]:
         t = data.get(kind)
         if not isinstance(t, dict):
             raise GelsimError(f"{TABLE_FILE}: missing [{kind}]; regenerate with tools/johnson_tables.py")
-        cols = {k: np.asarray(t[k], dtype=np.float64) for k in ("s", "contact_fraction", "kept", "zeta", "lam")}
+        cols = {k: np.asarray(t[k], dtype=np.float64) for k in ("s",) + KEYS}
         n = len(cols["s"])
         if any(len(v) != n for v in cols.values()) or n < 2 or np.any(np.diff(cols["s"]) <= 0):
             raise GelsimError(f"{TABLE_FILE} [{kind}]: columns must have equal length >= 2 and increasing s; "
@@ -201,7 +205,7 @@ def _segments() -> tuple["_Grid", dict[tuple[str, str], tuple[np.ndarray, np.nda
     s = tabs["1d"].s
     seg = {}
     for kind, tab in tabs.items():
-        for key in ("contact_fraction", "kept", "zeta", "lam"):
+        for key in KEYS:
             v = getattr(tab, key)
             seg[kind, key] = (v[:-1].astype(np.float32), (np.diff(v) / np.diff(s)).astype(np.float32))
     return _Grid(s), seg
@@ -231,9 +235,6 @@ class _Grid:
         i = self.first[b]
         i = np.minimum(i + (x >= self.nodes[np.minimum(i + 1, len(self.nodes) - 1)]), len(self.nodes) - 2)
         return i, x - self.nodes[i]
-
-
-KEYS = ("contact_fraction", "kept", "zeta", "lam")
 
 
 # A table whose nodes do not all sit on one grid step is resampled this much finer than its

@@ -324,8 +324,9 @@ def band_cells(mom, d, q_lo, q_hi):
     pixel). Returns float32 (rows, cols) fields: (variance mm^2; wavenumber 1/mm, clipped to
     [q_lo, q_hi]; anisotropy 0 (isotropic) to 1 (a 1-D wave); mean mm).
 
-    Each axis's mean square slope is corrected for the central difference's response (exact for a
-    wave at any angle); q = RMS slope / RMS height; the anisotropy is the slope tensor's
+    Each axis's mean square slope is corrected for the central difference's response, read on that
+    axis alone: a wave of q per axis reads sin(q d) / d there (exact for a wave at any angle, which
+    a Sobel's cross smoothing is not); q = RMS slope / RMS height; the anisotropy is the slope tensor's
     eigenvalue spread over its trace."""
     rows, cols = mom.shape[0], mom.shape[1]
     n = rows * cols
@@ -371,7 +372,9 @@ def map_cells(var, q, aniso, p, gain, e_star, yarn_comp, has_cloth: bool, cloth_
     Returns float32 (rows, cols) fields: (1 / gain; the gel's share
     of relief; the effective crown-to-valley depth d_eff, mm; 1 - the span slope lam; the contact
     fraction phi). The depth is 2 sqrt(2) sigma for a 1-D wave and 4 sigma for the 2-D one, blended
-    by the anisotropy; s = p / p* = p / (E*/4 q d_eff)."""
+    by the anisotropy (exact for both; the deepest valley would count the narrow crevices between
+    yarns, which the gel cannot enter and a finer grid resolves deeper); s = p / p* =
+    p / (E*/4 q d_eff)."""
     shape = var.shape
     n = var.size
     var, q, aniso, p, gain = var.ravel(), q.ravel(), aniso.ravel(), p.ravel(), gain.ravel()

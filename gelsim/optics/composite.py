@@ -42,26 +42,18 @@ def marker_corners(markers) -> np.ndarray | None:
     return corners
 
 
-def marker_coverage(corners: np.ndarray, pad_px: int) -> tuple[np.ndarray, np.ndarray]:
-    """Anti-aliased coverage of convex quadrilateral markers, one patch per marker.
+def coverage_strip(corners: np.ndarray, pad_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """Anti-aliased coverage of convex quadrilateral markers, one patch per marker, side by side.
 
     ``corners``: float32 ``(N, 4, 2)`` (x, y) px, pixel centres at integers. Returns
-    ``(origin, coverage)``: int64 ``(N, 2)`` (x, y) of each patch's top-left pixel
-    and float32 ``(N, P, P)`` coverage in 0-1, each patch ``pad_px`` wider than its
-    marker on every side. Coverage is the product over the 4 edges of
-    ``clip(0.5 + signed distance inside, 0, 1)``: the exact pixel-box coverage of an
-    axis-aligned rectangle at least 1 px wide, and within a few percent of it at the
-    corners of a sheared one. (cv2.fillPoly with LINE_AA was tried first: its squares
-    came out 1.2 px too wide and moved in whole pixels.)
+    ``(origin, strip)``: int64 ``(N, 2)`` (x, y) of each patch's top-left pixel and float32
+    ``(P, N P)`` coverage in 0-1, patch ``i`` in columns ``i P:(i + 1) P`` (the layout
+    :func:`marker_factors` blurs in one call), each patch ``pad_px`` wider than its marker on every
+    side. Coverage is the product over the 4 edges of ``clip(0.5 + signed distance inside, 0, 1)``:
+    the exact pixel-box coverage of an axis-aligned rectangle at least 1 px wide, and within a few
+    percent of it at the corners of a sheared one. (cv2.fillPoly with LINE_AA was tried first: its
+    squares came out 1.2 px too wide and moved in whole pixels.)
     """
-    lo, strip = coverage_strip(corners, pad_px)
-    p = strip.shape[0]
-    return lo, np.ascontiguousarray(strip.reshape(p, lo.shape[0], p).transpose(1, 0, 2))
-
-
-def coverage_strip(corners: np.ndarray, pad_px: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`marker_coverage` with the patches side by side: ``(origin, strip)``, float32 strip ``(P, N P)``
-    (patch ``i`` in columns ``i P:(i + 1) P``), the layout :func:`marker_factors` blurs in one call."""
     n = corners.shape[0]
     lo = np.floor(corners.min(axis=1)).astype(np.int64) - pad_px
     size = int(np.ceil(corners.max(axis=1) - corners.min(axis=1)).max()) + 2 * pad_px + 2
@@ -84,7 +76,7 @@ def coverage_strip(corners: np.ndarray, pad_px: int) -> tuple[np.ndarray, np.nda
 def darken_markers(frame: np.ndarray, corners: np.ndarray, darkness: float, blur_sigma_px: float) -> None:
     """Multiply ``frame`` (float32 ``(H, W, 3)``, in place) by ``1 - darkness * coverage`` of the markers.
 
-    Coverage (:func:`marker_coverage`) is blurred like the rest of the image and
+    Coverage (:func:`coverage_strip`) is blurred like the rest of the image and
     applied per marker patch, so the cost grows with the markers, not the frame.
     """
     apply_marker_factors(frame, marker_factors(corners, darkness, blur_sigma_px, frame.shape))
@@ -114,7 +106,7 @@ def marker_factors(corners: np.ndarray, darkness: float, blur_sigma_px: float,
 
 def apply_marker_factors(frame: np.ndarray, factors: tuple[np.ndarray, np.ndarray] | None, y0: int = 0) -> None:
     """Multiply ``frame`` (float32 C-contiguous ``(H, W, C)``, in place) by :func:`marker_factors`' patches,
-    in marker order (one pass of :func:`~gelsim.optics.kernels.multiply_patches`: a Python loop of
+    in marker order (one pass of :func:`~gelsim.optics.kernels.multiply_patches_rows`: a Python loop of
     OpenCV multiplies over about 100 patches took 0.4 ms per frame). ``y0``: the frame row (px) that
     ``frame``'s first row is, for a band of a frame (the same values there as the whole frame's pass)."""
     if factors is None:

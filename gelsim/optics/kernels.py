@@ -94,7 +94,7 @@ def quad_coverage_strip(lo, nx, ny, cc, out):
     ``out``: float32 ``(P, N P)``, written: patch ``i`` in columns ``i P:(i + 1) P``, its row ``r``,
     column ``j`` the pixel ``(lo[i, 0] + j, lo[i, 1] + r)``. Coverage is the product over the edges,
     in their order, of ``clip(nx x + ny y + cc, 0, 1)``, each product and sum rounded to float32 as
-    numpy's broadcast expression :func:`gelsim.optics.composite.marker_coverage` wrote it."""
+    numpy's broadcast expression in :func:`gelsim.optics.composite.coverage_strip` wrote it before."""
     p = out.shape[0]
     n = lo.shape[0]
     one = np.float32(1.0)
@@ -112,20 +112,14 @@ def quad_coverage_strip(lo, nx, ny, cc, out):
 
 
 @njit(cache=True, nogil=True)
-def multiply_patches(frame, lo, factor):
-    """Multiply ``frame`` (float32 ``(H, W, C)``, in place) by patches of a factor, in patch order.
+def multiply_patches_rows(rows, lo, factor, y_lo):
+    """Multiply a frame's rows ``y_lo:y_lo + n`` (px), ``rows`` float32 ``(n, W, C)`` in place (the whole
+    frame: ``y_lo`` 0), by patches of a factor, in patch order.
 
     ``lo``: int64 ``(N, 2)`` (x, y) px of each patch's top-left pixel; ``factor``: float32 ``(P, N P)``,
     patch ``i`` in columns ``i P:(i + 1) P`` (as :func:`quad_coverage_strip` lays them out), the same
-    for every channel. Parts of a patch beyond the frame are skipped."""
-    multiply_patches_rows(frame, lo, factor, 0)
-
-
-@njit(cache=True, nogil=True)
-def multiply_patches_rows(rows, lo, factor, y_lo):
-    """:func:`multiply_patches` on a band of a frame: ``rows`` float32 ``(n, W, C)`` holds the frame's rows
-    ``y_lo:y_lo + n`` (px), the patches' parts on those rows multiply it. The same products, pixel by
-    pixel, as the whole frame's pass, so a frame finished band by band (while its rows are in the
+    for every channel. Parts of a patch beyond the rows are skipped. The products are pixel by pixel
+    those of a whole frame's pass, so a frame finished band by band (while its rows are in the
     cache) gets the same values."""
     n, w, c = rows.shape
     p = factor.shape[0]

@@ -613,7 +613,7 @@ class BatchRenderer:
 def marker_factor(corners, shape: tuple[int, int], darkness: float, blur_sigma_px: float):
     """``1 - darkness * blur(coverage)`` of the markers (:func:`gelsim.optics.composite.darken_markers`) as
     a ``(B, H, W)`` factor, from corners float32 ``(B, N, 4, 2)`` (x, y) px. Each marker's coverage is
-    computed on its own patch (:func:`gelsim.optics.composite.marker_coverage`), blurred there, and
+    computed on its own patch (:func:`gelsim.optics.composite.coverage_strip`), blurred there, and
     multiplied into the frame's factor; patches beyond the frame draw nothing."""
     torch = _torch()
     b, n = corners.shape[:2]

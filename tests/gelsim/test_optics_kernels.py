@@ -190,17 +190,17 @@ def _quads(rng, n, h, w, size=9.0):
 
 @pytest.mark.parametrize("pad", [1, 3])
 def test_marker_coverage_equals_the_numpy_expression(pad):
-    from gelsim.optics.composite import coverage_strip, marker_coverage
+    from gelsim.optics.composite import coverage_strip
 
     rng = np.random.default_rng(pad)
     for _ in range(5):
         corners = _quads(rng, 40, 60, 80) + rng.random((40, 1, 2)).astype(np.float32)
         lo_ref, ref = _numpy_coverage(corners, pad)
-        lo, cov = marker_coverage(corners, pad)
+        lo, strip = coverage_strip(corners, pad)
+        n, p, _ = ref.shape
+        cov = strip.reshape(p, n, p).transpose(1, 0, 2)
         np.testing.assert_array_equal(lo, lo_ref)
         np.testing.assert_array_equal(cov, ref)
-        _, strip = coverage_strip(corners, pad)
-        n, p, _ = ref.shape
         np.testing.assert_array_equal(strip, ref.transpose(1, 0, 2).reshape(p, n * p))
     assert 0.0 < ref.mean() < 1.0 and (ref == 1.0).any()
 
@@ -219,7 +219,7 @@ def test_multiply_patches_equals_a_multiply_per_patch(channels):
     ref = frame.copy()
     _opencv_apply(ref, lo, strip)
     got = frame.copy()
-    K.multiply_patches(got, lo, strip)
+    K.multiply_patches_rows(got, lo, strip, 0)
     np.testing.assert_array_equal(got, ref)
     assert (lo < 0).any() and (lo[:, 0] + p > w).any() and (lo[:, 1] + p > h).any()
 
@@ -264,7 +264,7 @@ def test_multiply_patches_band_by_band_equals_the_whole_frame():
     strip += rng.normal(0, 1e-3, strip.shape).astype(np.float32)
     frame = (rng.random((h, w, 3), dtype=np.float32) * 255).astype(np.float32)
     ref = frame.copy()
-    K.multiply_patches(ref, lo, strip)
+    K.multiply_patches_rows(ref, lo, strip, 0)
     assert (ref != frame).mean() > 0.3
     for band in (1, 3, 7, 16, h):
         got = frame.copy()
