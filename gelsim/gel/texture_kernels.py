@@ -436,3 +436,45 @@ def fine_cells(var_f, g2, dx, q_lo, q_hi, p, phi, e_star, yarn_comp, has_cloth: 
     for j in range(n):
         kept[j] *= shares[j]
     return kept.reshape(shape)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def bearing_samples(te, ny: int, nx: int, d_eff, fs: int, stride: int):
+    """The bearing curve's samples, unsorted: z = -te / d_eff at every ``stride``-th pixel of the first
+    ``ny`` rows and ``nx`` columns of ``te`` (mm), each over ``d_eff`` (mm, float32 (rows, cols) on
+    cells of ``fs`` px) at its own cell; float32 (ceil(ny / stride) * ceil(nx / stride),)."""
+    rows = (ny + stride - 1) // stride
+    cols = (nx + stride - 1) // stride
+    last_r, last_c = d_eff.shape[0] - 1, d_eff.shape[1] - 1
+    z = np.empty(rows * cols, np.float32)
+    k = 0
+    for a in range(rows):
+        i = a * stride
+        d_row = d_eff[min(i // fs, last_r)]
+        t_row = te[i]
+        for b in range(cols):
+            j = b * stride
+            z[k] = -t_row[j] / d_row[min(j // fs, last_c)]
+            k += 1
+    return z
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def bearing_read(z, phi, d_eff):
+    """d_eff times the bearing curve ``z`` (sorted, float32 (n,), n >= 1) read at probability ``phi``:
+    float32, the shape of ``phi`` and ``d_eff`` (mm). The n samples sit at probabilities (k + 0.5) / n,
+    evenly spaced, so the curve is read by arithmetic (a binary search took 7x longer): linear
+    between samples, held at the ends (as np.interp)."""
+    n = z.size
+    out = np.empty(phi.shape, np.float32)
+    for r in range(phi.shape[0]):
+        for c in range(phi.shape[1]):
+            if n == 1:
+                v = np.float64(z[0])
+            else:
+                x = min(max(np.float32(phi[r, c] * np.float32(n) - np.float32(0.5)), np.float32(0.0)),
+                        np.float32(n - 1))
+                i = min(int(x), n - 2)
+                v = z[i] + (np.float64(x) - i) * (z[i + 1] - z[i])
+            out[r, c] = v * d_eff[r, c]
+    return out

@@ -287,7 +287,7 @@ def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float,
     # little area near its top, a flat-topped float much. The texture is stationary over a patch,
     # so one bearing curve of depth over the local crown-to-valley depth serves every cell (on a
     # wave it is exactly the tables' zeta). te = share * (the texture's band).
-    cut = (_bearing_depth(te[:ny, :nx], d_eff, fs, phi) * d_eff).astype(np.float32)
+    cut = _bearing_cut(te, ny, nx, d_eff, fs, phi)
     kept_f = cut   # (not read without a finer band)
     if tf is not None:
         # The finer relief on the crowns in contact, at the crowns' pressure p / (contact fraction):
@@ -304,25 +304,17 @@ def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float,
     return TextureDepth(g, smooth((g_sum / cell_px).astype(np.float32)), fs, touch)
 
 
-def _bearing_depth(te: np.ndarray, d_eff: np.ndarray, fs: int, phi: np.ndarray) -> np.ndarray:
-    """Depth (over the crown-to-valley depth) above which ``phi`` of the area lies, from the
-    window's bearing curve of -te / d_eff (about ``BEARING_SAMPLES`` samples; ``d_eff`` on the stats
-    grid of ``fs``-pixel cells, read at each sample's cell)."""
-    stride = max(1, int(math.sqrt(te.size / BEARING_SAMPLES)))
-    ys = np.arange(0, te.shape[0], stride)
-    xs = np.arange(0, te.shape[1], stride)
-    d = d_eff[np.minimum(ys // fs, d_eff.shape[0] - 1)][:, np.minimum(xs // fs, d_eff.shape[1] - 1)]
-    z = np.sort((-te[::stride, ::stride] / d).ravel())
-    # The curve's samples sit at probabilities (k + 0.5) / n, evenly spaced: read it at phi by
-    # arithmetic (np.interp's binary search over 10^4 samples took 3.5 ms per frame), linear between
-    # samples and held at the ends as np.interp is.
-    n = z.size
-    if n == 1:
-        return np.full(np.shape(phi), z[0], np.float32)
-    x = np.clip(np.asarray(phi, np.float32) * np.float32(n) - np.float32(0.5), np.float32(0.0), np.float32(n - 1))
-    i = np.minimum(x.astype(np.intp), n - 2)
-    z = z.astype(np.float32)
-    return z[i] + (x - i) * (z[i + 1] - z[i])
+def _bearing_cut(te: np.ndarray, ny: int, nx: int, d_eff: np.ndarray, fs: int, phi: np.ndarray) -> np.ndarray:
+    """The cut, mm (float32, the shape of ``phi``): ``d_eff`` times the depth (over the crown-to-valley
+    depth) above which ``phi`` of the area lies, read from the window's bearing curve of -te / d_eff
+    (about ``BEARING_SAMPLES`` samples of the first ``ny`` rows and ``nx`` columns of ``te``; ``d_eff``
+    on the stats grid of ``fs``-pixel cells, read at each sample's cell). The gather and the reading
+    are compiled loops (numpy's strided gathers and a dozen passes over the cells took 0.3 ms per
+    frame); the sort is numpy's (its SIMD sort is 3x numba's)."""
+    stride = max(1, int(math.sqrt(ny * nx / BEARING_SAMPLES)))
+    z = kernels.bearing_samples(te, ny, nx, d_eff, fs, stride)
+    z.sort()
+    return kernels.bearing_read(z, np.asarray(phi, np.float32), d_eff)
 
 
 def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, depth_mm: float | None,
