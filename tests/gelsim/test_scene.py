@@ -1,6 +1,7 @@
 """gelsim.scene: the typed touched object and the patches built from it."""
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -77,6 +78,42 @@ def test_patch_sample_translates_and_rotates():
     a = patch.sample((61, 81), 0.05, 0.0, 0.0, 0.0)
     b = patch.sample((61, 81), 0.05, 0.0, 0.0, 90.0)
     np.testing.assert_allclose(a[20:41, 30:51], b[20:41, 30:51], atol=2e-3)
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 1e-4, 0.5])
+def test_patch_sample_is_bilinear_to_the_last_row_and_column(yaw_deg):
+    """A sensor moved by a fraction of a pixel (and turned by a hand's tremor, taken as a pure
+    translation, or by half a degree, warped) reads the patch bilinearly everywhere, its last row
+    and column included: against the bilinear formula itself, and an edge that runs off the patch
+    replicates it as OpenCV's warp does."""
+    rng = np.random.default_rng(7)
+    hp = rng.random((90, 120)).astype(np.float32)
+    patch = HeightPatch(hp, (0.0, 0.0), 1.0)
+    H, W = 61, 81
+    x, y = 59.3, 44.8          # the sensor's centre, mm = px of the patch
+    img = patch.sample((H, W), 1.0, x, y, yaw_deg)
+    assert img.shape == (H, W) and img.dtype == np.float32 and img.flags.c_contiguous
+    t = math.radians(yaw_deg)
+    jj, ii = np.meshgrid(np.arange(W) - (W - 1) / 2, np.arange(H) - (H - 1) / 2)
+    sx = x + math.cos(t) * jj - math.sin(t) * ii
+    sy = y + math.sin(t) * jj + math.cos(t) * ii
+    x0, y0 = np.floor(sx).astype(int), np.floor(sy).astype(int)
+    fx, fy = sx - x0, sy - y0
+    want = ((1 - fx) * (1 - fy) * hp[y0, x0] + fx * (1 - fy) * hp[y0, x0 + 1]
+            + (1 - fx) * fy * hp[y0 + 1, x0] + fx * fy * hp[y0 + 1, x0 + 1])
+    # The translation path neglects the turn: its corners move by at most the frame's half-diagonal
+    # times the angle (8.7e-5 px at 1e-4 degrees), against the patch's slopes of at most 1 per px.
+    # OpenCV's warp rounds coordinates to 1/32 px.
+    turn_px = math.hypot(W, H) / 2 * t
+    tol = 1e-5 + turn_px if yaw_deg < 0.01 else 1.0 / 32
+    np.testing.assert_allclose(img, want, atol=tol)
+    # off the patch's edge: the warp's replicated border, whichever path
+    edge = patch.sample((H, W), 1.0, 80.6, 30.4, yaw_deg)
+    M = np.array([[math.cos(t), -math.sin(t), 0.0], [math.sin(t), math.cos(t), 0.0]])
+    M[:, 2] = np.array([80.6, 30.4]) - M[:, :2] @ np.array([(W - 1) / 2, (H - 1) / 2])
+    ref = cv2.warpAffine(hp, M, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                         borderMode=cv2.BORDER_REPLICATE)
+    np.testing.assert_allclose(edge, ref, atol=1e-6)
 
 
 def test_tilt_raises_the_leaning_side():
