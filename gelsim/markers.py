@@ -196,7 +196,7 @@ def displacement_fields(profile, fidelity, imprint, *, shear_mm=(0.0, 0.0), twis
         r0, c0, hc, wc = by, bx, max(2, bh), max(2, bw)
         r0, c0 = min(r0, h - hc), min(c0, w - wc)
     win = (slice(r0, r0 + hc * f), slice(c0, c0 + wc * f))
-    depth_c = cv2.resize(depth[win], (wc, hc), interpolation=cv2.INTER_AREA)
+    depth_c = cv2.resize(depth[win].astype(np.float32, copy=False), (wc, hc), interpolation=cv2.INTER_AREA)
     mask_c = cv2.resize(mask[win].astype(np.float32), (wc, hc), interpolation=cv2.INTER_AREA)
     sx = sy = float(f)  # px per cell
     amp = 3.0 / (2.0 * gel.thickness_mm)  # surface displacement per unit depth-averaged flux, 1/mm
