@@ -269,6 +269,26 @@ def test_torch_backend_same_labels_frames_within_tolerance_same_bytes_for_any_ba
     assert "(backend)" in capsys.readouterr().err
 
 
+def test_device_cuda_writes_the_fast_dataset(tmp_path):  # pragma: no cover - runs only on a GPU machine
+    """--device cuda writes the fast backend's labels byte for byte and its frames within the torch
+    backend's tolerance, and the same bytes for any --batch (and --workers): issue #16 on a GPU."""
+    torch = pytest.importorskip("torch")
+    from gelsim.optics.torch_backend import TOL_MAX_UINT8_DN, TOL_MEAN_DN
+
+    if not torch.cuda.is_available():
+        pytest.skip("no CUDA device here (CI has none)")
+    args = ["--fabrics", "2", "--sequences-per-fabric", "2", "--format", "png"]
+    assert _gen(tmp_path / "fast", *args) == 0
+    assert _gen(tmp_path / "g1", *args, "--backend", "torch", "--device", "cuda", "--batch", "1") == 0
+    assert _gen(tmp_path / "g16", *args, "--backend", "torch", "--device", "cuda", "--batch", "16", workers=2) == 0
+    fast, g1, g16 = (load_manifest(tmp_path / n) for n in ("fast", "g1", "g16"))
+    assert g1["sequences"] == g16["sequences"]
+    for f, t in zip(fast["sequences"], g1["sequences"]):
+        assert f["sha256"]["labels"] == t["sha256"]["labels"]
+        err = np.abs(_frames(tmp_path / "fast", f) - _frames(tmp_path / "g1", t))
+        assert err.max() <= TOL_MAX_UINT8_DN and err.mean() < TOL_MEAN_DN, (f["id"], err.max(), err.mean())
+
+
 def test_device_cuda_without_cuda_is_one_line_exit_2(tmp_path, capsys):
     torch = pytest.importorskip("torch")
     if torch.cuda.is_available():
