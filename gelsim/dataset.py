@@ -18,6 +18,7 @@ import json
 import math
 import os
 import shutil
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -547,6 +548,18 @@ def ray_sequences(config: GenerateConfig, root: str, specs: list[SequenceSpec]) 
     return [done.get(spec.id) or generate_sequence(spec) for spec in specs]
 
 
+def _pool_start_method() -> str:
+    """How the worker pool starts its processes: forked (fast, the parent's imports shared), unless this
+    process has already initialised CUDA (a torch-backend dataset generated in-process before, or a
+    caller's own GPU work), which a forked child cannot use: its initializer would fail and the pool
+    would replace it forever. Then spawned. The output is the same either way (each sequence is a pure
+    function of its spec)."""
+    torch = sys.modules.get("torch")
+    if torch is not None and torch.cuda.is_initialized():
+        return "spawn"
+    return "fork"
+
+
 @contextlib.contextmanager
 def _sequence_results(config: GenerateConfig, root: Path, todo: list[SequenceSpec], workers: int | None, cluster):
     """The records of ``todo`` as they finish: from Ray tasks (``cluster``), in this process (one
@@ -566,7 +579,8 @@ def _sequence_results(config: GenerateConfig, root: Path, todo: list[SequenceSpe
         return
     import multiprocessing as mp
 
-    pool = mp.get_context("fork").Pool(workers, initializer=_worker_init, initargs=(config, str(root)))
+    pool = mp.get_context(_pool_start_method()).Pool(workers, initializer=_worker_init,
+                                                      initargs=(config, str(root)))
     try:
         yield pool.imap_unordered(generate_sequence, todo, chunksize=1)
     finally:

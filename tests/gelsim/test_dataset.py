@@ -69,6 +69,21 @@ def test_two_workers_give_identical_dataset(tiny, tmp_path):
     assert _contents(out) == _contents(tiny)
 
 
+def test_a_parent_with_cuda_spawns_its_workers_same_dataset(tiny, tmp_path, monkeypatch):
+    """A process that has initialised CUDA cannot fork workers that use it (their initializer fails and
+    the pool replaces them forever: a hang, seen on a GPU machine): such a parent spawns its workers,
+    which write the same dataset."""
+    from gelsim import dataset
+
+    torch = pytest.importorskip("torch")
+    assert dataset._pool_start_method() == "fork"
+    monkeypatch.setattr(torch.cuda, "is_initialized", lambda: True)
+    assert dataset._pool_start_method() == "spawn"
+    out = tmp_path / "spawned"
+    assert _gen(out, workers=2) == 0
+    assert _contents(out) == _contents(tiny)
+
+
 def test_sensor_units_are_drawn_recorded_and_deterministic(tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     assert _gen(a, "--units", "2") == 0
