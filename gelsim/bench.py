@@ -821,7 +821,8 @@ def _runs(doc: dict) -> list[dict]:
 def _knobs(fid: Fidelity) -> dict:
     d = dataclasses.asdict(fid)
     d.pop("name")
-    d.pop("est_ms_per_frame_vga")
+    for k in ("est_ms_per_frame_vga", "est_ms_per_frame_960", "est_worker_efficiency"):
+        d.pop(k)
     return d
 
 

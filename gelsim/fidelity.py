@@ -27,6 +27,22 @@ class Fidelity:
                                                    "macro (contact-scale) elastic solve")
     est_ms_per_frame_vga: float = param(50.0, lo=0.0, hi=1e6,
                                         doc="measured end-to-end ms per 640x480 frame on one core (for --dry-run estimates)")
+    est_ms_per_frame_960: float = param(100.0, lo=0.0, hi=1e6,
+                                        doc="measured end-to-end ms per 960x720 frame on one core (for --dry-run estimates)")
+    est_worker_efficiency: float = param(1.0, lo=0.1, hi=1.0,
+                                         doc="speed of each of several workers relative to one alone (shared memory "
+                                             "bandwidth and caches; for --dry-run estimates)")
+
+    def estimate_seconds(self, frames: int, width_px: int, height_px: int, workers: int = 1) -> float:
+        """Estimated wall seconds to generate ``frames`` frames of ``width_px`` x ``height_px`` on ``workers``
+        workers: the time per frame is linear in the pixel count through the two measured sizes (the
+        costs that do not scale with pixels, physics and per-sequence set-up, are its intercept), and
+        several workers each run ``est_worker_efficiency`` times as fast as one alone."""
+        px_vga, px_960 = 640 * 480, 960 * 720
+        slope = (self.est_ms_per_frame_960 - self.est_ms_per_frame_vga) / (px_960 - px_vga)
+        ms = max(0.0, self.est_ms_per_frame_vga + slope * (width_px * height_px - px_vga))
+        rate = workers * (self.est_worker_efficiency if workers > 1 else 1.0)
+        return frames * ms / 1000.0 / rate
 
 
 def fidelity_levels() -> dict[str, Fidelity]:

@@ -185,7 +185,7 @@ def _dry_run(cfg, args) -> int:
     nbytes = dataset.estimate_bytes(specs, cfg.format, w, h)
     fid = get_fidelity(cfg.fidelity)
     workers = args.workers or os.cpu_count() or 1
-    est_s = frames * fid.est_ms_per_frame_vga * (w * h) / (640 * 480) / 1000 / workers
+    est_s = fid.estimate_seconds(frames, w, h, workers)
     counts = {a: sum(1 for s in specs if s.action == a) for a in schema.ACTIONS}
     splits = {k: sum(1 for s in specs if s.split == k) for k in schema.SPLITS}
     plan = {"out": str(args.out), "options": cfg.options(), "sequences": len(specs), "frames": frames,

@@ -231,6 +231,14 @@ def test_dry_run_writes_nothing(tmp_path, capsys):
     assert plan["sequences"] == 5000 and plan["estimated_bytes"] > 0 and plan["estimated_seconds"] > 0
     assert plan["actions"] == {"press": 3500, "slip": 500, "twist": 1000}
     assert not out.exists()
+    # the estimate is the default level's, at the profile's 960x720, on the workers asked for
+    from gelsim.fidelity import get_fidelity
+
+    assert main(["generate", "--out", str(out), "--dry-run", "--json", "--workers", "2"]) == 0
+    two = json.loads(capsys.readouterr().out)
+    assert two["workers"] == 2 and two["resolution"] == [960, 720]
+    assert two["estimated_seconds"] == round(get_fidelity().estimate_seconds(two["frames"], 960, 720, 2), 1)
+    assert not out.exists()
 
 
 def test_a_dataset_made_before_an_option_existed_resumes(tiny, tmp_path, capsys):
