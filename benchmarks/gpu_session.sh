@@ -31,7 +31,9 @@ $PY -c "import gelsim, mujoco, av, torch; print('torch', torch.__version__, 'cud
   || { echo "imports failed"; exit 3; }
 
 echo "== CUDA tests ($SECONDS s)"
-$PY -m pytest -q -p no:cacheprovider tests/gelsim/test_torch_backend.py tests/gelsim/test_dataset.py -k cuda 2>&1 \
+# bounded: a hang here (as on 2026-11-26, before the pool spawned its workers under CUDA) must not
+# take the whole lease
+timeout -s INT 150 $PY -m pytest -q -p no:cacheprovider tests/gelsim/test_torch_backend.py tests/gelsim/test_dataset.py -k cuda 2>&1 \
   | tee "$OUT/cuda_tests.txt" | tail -5
 
 echo "== bench_torch ($SECONDS s)"

@@ -295,6 +295,12 @@ def _check_out_dir(root: Path, options: dict) -> dict | None:
             diff = [k for k in options if made.get(k) != options[k]]
             raise GelsimError(f"--out {root} holds a dataset made with other options ({', '.join(diff)}); "
                               "rerun with the same options to resume, or choose another --out")
+        made_with, now = m.get("libraries"), library_versions()
+        if made_with is not None and made_with != now:
+            diff = [f"{k} {made_with.get(k)} (here {now[k]})" for k in now if made_with.get(k) != now[k]]
+            raise GelsimError(f"--out {root} was made with other library versions ({', '.join(diff)}), which give "
+                              "other bytes from the same seed; resume it where those are installed, or choose "
+                              "another --out")
         return m
     # Writability is checked by creating the directory (nothing else is touched).
     try:
@@ -446,7 +452,22 @@ def _manifest(config: GenerateConfig, profile, catalog, specs, records: dict[str
         profile={"name": profile.name, "width_px": profile.image.width_px, "height_px": profile.image.height_px,
                  "mm_per_px": profile.image.mm_per_px, "fps_hz": profile.image.fps_hz},
         fabrics=[{k: getattr(catalog[i], k) for k in schema.FABRIC_FIELDS} for i in fabric_ids],
-        sequences=seqs, **(_units_section(config, profile) if config.units else {}))
+        sequences=seqs, libraries=library_versions(),
+        **(_units_section(config, profile) if config.units else {}))
+
+
+def library_versions() -> dict[str, str]:
+    """This process's versions of :data:`gelsim.schema.LIBRARIES`: a dataset resumed under others would
+    mix sequences that the same seed makes differently."""
+    import av
+    import cv2
+    import mujoco
+    import numba
+    import scipy
+
+    found = {"numpy": np.__version__, "scipy": scipy.__version__, "opencv": cv2.__version__,
+             "numba": numba.__version__, "mujoco": mujoco.__version__, "av": av.__version__}
+    return {k: found[k] for k in schema.LIBRARIES}
 
 
 def _units_section(config: GenerateConfig, profile) -> dict:
@@ -544,8 +565,23 @@ def ray_sequences(config: GenerateConfig, root: str, specs: list[SequenceSpec]) 
 
         raise GelsimError(f"Ray node {node_description()} does not see --out {root} (no {schema.MANIFEST} there); "
                           "mount the output directory at the same path on every node")
+    if _WORKER.get("libraries_checked") != root:
+        _check_node_libraries(root)
+        _WORKER["libraries_checked"] = root
     done = _load_records(Path(root), specs)
     return [done.get(spec.id) or generate_sequence(spec) for spec in specs]
+
+
+def _check_node_libraries(root: str) -> None:
+    """A Ray node whose numeric libraries differ from those the manifest records (the driver's) would
+    write sequences that the same seed makes differently elsewhere: refused, one line naming them."""
+    made_with, here = load_manifest(root).get("libraries"), library_versions()
+    if made_with is not None and made_with != here:
+        from .cluster import node_description
+
+        diff = [f"{k} {here[k]} (the dataset's {made_with.get(k)})" for k in here if made_with.get(k) != here[k]]
+        raise GelsimError(f"Ray node {node_description()} has other library versions ({', '.join(diff)}), which give "
+                          "other bytes from the same seed; install the same versions on every node (make install)")
 
 
 def _pool_start_method() -> str:

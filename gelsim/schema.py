@@ -73,10 +73,15 @@ def sha256_of(path: Path) -> str:
 
 # ---------------------------------------------------------------- manifest
 
-#: Top-level fields of manifest.json, in the order they are written. With ``--units K`` two more follow
-#: ``splits``: ``unit_variation`` (the ranges drawn from) and ``units`` (each unit's parameters).
+#: Top-level fields of manifest.json, in the order they are written. After ``splits`` come ``libraries``
+#: (the versions of the numeric libraries that wrote it, LIBRARIES; absent in datasets made before it
+#: existed) and, with ``--units K``, ``unit_variation`` (the ranges drawn from) and ``units`` (each unit's
+#: parameters).
 MANIFEST_FIELDS = ("format", "format_version", "complete", "generator_version", "seed", "options",
                    "catalog_version", "profile", "fabrics", "splits", "sequences")
+#: The ``libraries`` entry: the packages whose version changes a dataset's bytes (OpenCV 4.14 and 5.0 give
+#: other fabric heightfields, so other contacts, labels and frames from the same seed).
+LIBRARIES = ("numpy", "scipy", "opencv", "numba", "mujoco", "av")
 #: The ``profile`` entry: the sensor the dataset was rendered for.
 PROFILE_FIELDS = ("name", "width_px", "height_px", "mm_per_px", "fps_hz")
 #: One ``fabrics`` entry.
@@ -95,7 +100,7 @@ READ_FIELDS = ("id", "fabric_id", "num_frames", "split", "video")
 def make_manifest(*, complete: bool, generator_version: str, seed: int, options: dict, catalog_version: str,
                   profile: dict, fabrics: list[dict], sequences: list[dict], **extra: Any) -> dict:
     """A manifest in MANIFEST_FIELDS order, ``splits`` counted from the sequences; ``extra`` fields
-    (``unit_variation``, ``units``) go before ``sequences``."""
+    (``libraries``, ``unit_variation``, ``units``) go before ``sequences``."""
     return {"format": FORMAT, "format_version": FORMAT_VERSION, "complete": bool(complete),
             "generator_version": generator_version, "seed": seed, "options": options,
             "catalog_version": catalog_version, "profile": {k: profile[k] for k in PROFILE_FIELDS},

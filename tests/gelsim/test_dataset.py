@@ -12,6 +12,7 @@ import pytest
 
 from gelsim.cli import main
 from gelsim.dataset import load_manifest, verify
+from gelsim.errors import GelsimError
 from gelsim.sensor import SENSORS_DIR
 from gelsim.video import count_frames
 
@@ -256,6 +257,34 @@ def test_a_dataset_made_before_an_option_existed_resumes(tiny, tmp_path, capsys)
     assert _gen(out, "--split", "1:1:1") == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("gelsim: error: --out") and "(split)" in err[-1]
+
+
+def test_the_manifest_records_the_libraries_and_resume_refuses_others(tiny, tmp_path, capsys):
+    """Another OpenCV (4.14 against 5.0) gives other heightfields, contacts, labels and frames from the
+    same seed, so the manifest records the numeric libraries' versions and a resume under others is
+    refused (one line naming them, exit 2, nothing touched); a manifest from before the field resumes."""
+    import shutil
+
+    from gelsim import dataset, schema
+
+    m = load_manifest(tiny)
+    assert m["libraries"] == dataset.library_versions() and list(m["libraries"]) == list(schema.LIBRARIES)
+    out = tmp_path / "other"
+    shutil.copytree(tiny, out)
+    m["libraries"] = {**m["libraries"], "opencv": "4.14.0"}
+    (out / "manifest.json").write_text(json.dumps(m))
+    before = (out / "manifest.json").read_bytes()
+    capsys.readouterr()
+    assert _gen(out) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "opencv 4.14.0 (here " in err[0] and "other library versions" in err[0]
+    assert (out / "manifest.json").read_bytes() == before
+    # a Ray node with other versions refuses its task the same way, before writing anything
+    with pytest.raises(GelsimError, match="other library versions .*opencv"):
+        dataset.ray_sequences(dataset.GenerateConfig(), str(out), [])
+    del m["libraries"]
+    (out / "manifest.json").write_text(json.dumps(m))
+    assert _gen(out) == 0
 
 
 def _frames(root: Path, seq: dict) -> np.ndarray:
