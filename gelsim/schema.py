@@ -73,12 +73,12 @@ def sha256_of(path: Path) -> str:
 
 # ---------------------------------------------------------------- manifest
 
-#: Top-level fields of manifest.json, in the order they are written. After ``splits`` come ``libraries``
-#: (the versions of the numeric libraries that wrote it, LIBRARIES; absent in datasets made before it
-#: existed) and, with ``--units K``, ``unit_variation`` (the ranges drawn from) and ``units`` (each unit's
-#: parameters).
+#: Top-level fields of manifest.json, in the order they are written. ``libraries`` holds the versions of
+#: the numeric libraries that wrote it (LIBRARIES; absent in datasets made before it existed). With
+#: ``--units K`` two more follow it: ``unit_variation`` (the ranges drawn from) and ``units`` (each
+#: unit's parameters).
 MANIFEST_FIELDS = ("format", "format_version", "complete", "generator_version", "seed", "options",
-                   "catalog_version", "profile", "fabrics", "splits", "sequences")
+                   "catalog_version", "profile", "fabrics", "splits", "libraries", "sequences")
 #: The ``libraries`` entry: the packages whose version changes a dataset's bytes (OpenCV 4.14 and 5.0 give
 #: other fabric heightfields, so other contacts, labels and frames from the same seed).
 LIBRARIES = ("numpy", "scipy", "opencv", "numba", "mujoco", "av")
@@ -98,15 +98,15 @@ READ_FIELDS = ("id", "fabric_id", "num_frames", "split", "video")
 
 
 def make_manifest(*, complete: bool, generator_version: str, seed: int, options: dict, catalog_version: str,
-                  profile: dict, fabrics: list[dict], sequences: list[dict], **extra: Any) -> dict:
+                  profile: dict, fabrics: list[dict], libraries: dict, sequences: list[dict], **extra: Any) -> dict:
     """A manifest in MANIFEST_FIELDS order, ``splits`` counted from the sequences; ``extra`` fields
-    (``libraries``, ``unit_variation``, ``units``) go before ``sequences``."""
+    (``unit_variation``, ``units``) go before ``sequences``."""
     return {"format": FORMAT, "format_version": FORMAT_VERSION, "complete": bool(complete),
             "generator_version": generator_version, "seed": seed, "options": options,
             "catalog_version": catalog_version, "profile": {k: profile[k] for k in PROFILE_FIELDS},
             "fabrics": [{k: f[k] for k in FABRIC_FIELDS} for f in fabrics],
             "splits": {k: sum(1 for s in sequences if s.get("split") == k) for k in SPLITS},
-            **extra, "sequences": sequences}
+            "libraries": {k: libraries[k] for k in LIBRARIES}, **extra, "sequences": sequences}
 
 
 def sequence_entry(record: Mapping[str, Any]) -> dict:

@@ -70,12 +70,14 @@ def make_synthetic_dataset(out: str | Path, num_fabrics: int = 4, seqs_per_fabri
                 "seed": int(seed * 100000 + f * 1000 + k),
                 "sha256": {"video": schema.sha256_of(vpath), "labels": schema.sha256_of(lpath)},
                 "peak_force_n": float(max(force))}))
+    from gelsim.dataset import library_versions
+
     manifest = schema.make_manifest(
         complete=complete, generator_version="stam-synthetic", seed=seed,
         options={"synthetic": {"num_fabrics": num_fabrics, "seqs_per_fabric": seqs_per_fabric,
                                "num_frames": num_frames, "size": [w, h], "noise_grey": noise_grey, "format": fmt}},
         catalog_version="synthetic",
         profile={"name": "synthetic", "width_px": w, "height_px": h, "mm_per_px": 0.0197, "fps_hz": SYNTH_FPS_HZ},
-        fabrics=fabrics, sequences=sequences)
+        fabrics=fabrics, libraries=library_versions(), sequences=sequences)
     atomic_write_json(out / schema.MANIFEST, manifest)
     return out

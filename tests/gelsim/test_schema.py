@@ -104,7 +104,7 @@ def test_manifest_helpers():
                              profile={"name": "p", "width_px": 2, "height_px": 1, "mm_per_px": 0.1, "fps_hz": 30.0,
                                       "extra": 1},
                              fabrics=[{"id": 1, "name": "n", "family": "f", "material": "m", "extra": 2}],
-                             sequences=seqs, units=[])
+                             libraries={k: "1.0" for k in schema.LIBRARIES}, sequences=seqs, units=[])
     assert tuple(m)[:-2] == schema.MANIFEST_FIELDS[:-1] and tuple(m)[-2:] == ("units", "sequences")
     assert m["splits"] == {"train": 2, "val": 0, "test": 1}
     assert "extra" not in m["profile"] and "extra" not in m["fabrics"][0]
