@@ -295,12 +295,10 @@ def _check_out_dir(root: Path, options: dict) -> dict | None:
             diff = [k for k in options if made.get(k) != options[k]]
             raise GelsimError(f"--out {root} holds a dataset made with other options ({', '.join(diff)}); "
                               "rerun with the same options to resume, or choose another --out")
-        made_with, now = m.get("libraries"), library_versions()
-        if made_with is not None and made_with != now:
-            diff = [f"{k} {made_with.get(k)} (here {now[k]})" for k in now if made_with.get(k) != now[k]]
-            raise GelsimError(f"--out {root} was made with other library versions ({', '.join(diff)}), which give "
-                              "other bytes from the same seed; resume it where those are installed, or choose "
-                              "another --out")
+        diff = _library_difference(m.get("libraries"))
+        if diff:
+            raise GelsimError(f"--out {root} was made with other library versions ({diff}), which give other bytes "
+                              "from the same seed; resume it where those are installed, or choose another --out")
         return m
     # Writability is checked by creating the directory (nothing else is touched).
     try:
@@ -470,6 +468,15 @@ def library_versions() -> dict[str, str]:
     return {k: found[k] for k in schema.LIBRARIES}
 
 
+def _library_difference(made_with: dict | None) -> str | None:
+    """The libraries whose version differs from ``made_with`` (a manifest's ``libraries``), as
+    ``name recorded (here this)``, or None when they agree or the manifest predates the field."""
+    here = library_versions()
+    if made_with is None or made_with == here:
+        return None
+    return ", ".join(f"{k} {made_with.get(k)} (here {here[k]})" for k in here if made_with.get(k) != here[k])
+
+
 def _units_section(config: GenerateConfig, profile) -> dict:
     """The manifest's record of the sensor units: the ranges drawn from and each unit's parameters."""
     from .units import unit_record, variation_ranges
@@ -575,13 +582,13 @@ def ray_sequences(config: GenerateConfig, root: str, specs: list[SequenceSpec]) 
 def _check_node_libraries(root: str) -> None:
     """A Ray node whose numeric libraries differ from those the manifest records (the driver's) would
     write sequences that the same seed makes differently elsewhere: refused, one line naming them."""
-    made_with, here = load_manifest(root).get("libraries"), library_versions()
-    if made_with is not None and made_with != here:
+    diff = _library_difference(load_manifest(root).get("libraries"))
+    if diff:
         from .cluster import node_description
 
-        diff = [f"{k} {here[k]} (the dataset's {made_with.get(k)})" for k in here if made_with.get(k) != here[k]]
-        raise GelsimError(f"Ray node {node_description()} has other library versions ({', '.join(diff)}), which give "
-                          "other bytes from the same seed; install the same versions on every node (make install)")
+        raise GelsimError(f"Ray node {node_description()} has other library versions than the dataset's ({diff}), "
+                          "which give other bytes from the same seed; install the same versions on every node "
+                          "(make install)")
 
 
 def _pool_start_method() -> str:
