@@ -34,6 +34,24 @@ def test_roundtrip_frame_count_and_content(tmp_path, fmt):
     assert [q.name for q in tmp_path.iterdir()] == [p.name]
 
 
+@pytest.mark.parametrize("h, w", [(48, 128), (48, 70)])   # 70: chroma rows of 35 px are padded, no reuse
+def test_reused_yuv_frame_writes_the_same_file(tmp_path, h, w):
+    """The writer refills one yuv420p frame; a new frame per write (PyAV's from_ndarray) gives the same bytes."""
+    frames = _frames(n=6, h=h, w=w)
+    reused = write_video(tmp_path / "reused.mp4", frames)
+    fresh = VideoWriter(tmp_path / "fresh.mp4")
+    fresh._planes = None            # the from_ndarray path
+    with fresh:
+        for f in frames:
+            fresh.write(f)
+    writer = VideoWriter(tmp_path / "probe.mp4")
+    writer.write(frames[0])
+    assert (writer._frame is not None) == (w == 128)   # the reuse path was taken where it can be
+    writer.abort()
+    assert reused.read_bytes() == (tmp_path / "fresh.mp4").read_bytes()
+    assert read_video(reused).shape == (6, h, w, 3)
+
+
 def test_odd_size_h264(tmp_path):
     frames = _frames(h=33, w=47)
     p = write_video(tmp_path / "odd.mp4", frames)
