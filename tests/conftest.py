@@ -171,3 +171,13 @@ def ray_cluster():
     cluster = LocalRayCluster(nodes=2, cpus=1)
     yield cluster
     cluster.stop()
+
+
+@pytest.fixture(scope="session")
+def synth(tmp_path_factory):
+    """A tiny stam dataset: 4 fabrics x 20 sequences x 10 frames at 96 x 72 px, H.264 (splits 14/4/2
+    per fabric). Shared by tests/stam and tests/benchmarks."""
+    from stam.synthetic import make_synthetic_dataset
+
+    return make_synthetic_dataset(tmp_path_factory.mktemp("synth"), num_fabrics=4, seqs_per_fabric=20,
+                                  num_frames=10, size=(96, 72), seed=1)

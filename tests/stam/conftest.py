@@ -1,7 +1,6 @@
 import pytest
 import torch
 
-from stam.synthetic import make_synthetic_dataset
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -11,13 +10,6 @@ def _one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(old)
-
-
-@pytest.fixture(scope="session")
-def synth(tmp_path_factory):
-    """4 fabrics x 20 sequences x 10 frames at 96 x 72 px, H.264 (splits 14/4/2 per fabric)."""
-    return make_synthetic_dataset(tmp_path_factory.mktemp("synth"), num_fabrics=4, seqs_per_fabric=20,
-                                  num_frames=10, size=(96, 72), seed=1)
 
 
 TINY_PRESET = """
