@@ -41,8 +41,19 @@ def frame_strip(frames: np.ndarray, n: int = 6, width: int = 240, onset: int | N
     return np.concatenate(tiles, axis=1)
 
 
+def centre_crop(frame: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The central ``height x width`` px of ``frame`` at its own pixels (the whole frame if it is smaller)."""
+    h, w = frame.shape[:2]
+    th, tw = min(height, h), min(width, w)
+    y0, x0 = (h - th) // 2, (w - tw) // 2
+    return frame[y0:y0 + th, x0:x0 + tw]
+
+
 def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Path]:
-    """Write ``previews/<action>.png`` strips and ``previews/contact_sheet.png``; returns the paths."""
+    """Write ``previews/<action>.png`` strips, ``previews/contact_sheet.png`` (per fabric, its peak-force
+    frame scaled to ``tile_px`` wide) and ``previews/texture_sheet.png`` (the same frames' central
+    ``tile_px`` x 3/4 ``tile_px`` pixels at their own scale: a 960x720 frame's fine weaves vanish when
+    the whole frame is scaled to 160 px); returns the paths."""
     root = Path(root)
     out_dir = root / PREVIEWS_DIR
     out_dir.mkdir(exist_ok=True)
@@ -58,7 +69,7 @@ def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Pa
         write_png(p, strip)
         written.append(p)
     # Contact sheet: per fabric, the frame of peak force of its first sequence.
-    tiles = []
+    tiles, crops = [], []
     names = {f["id"]: f["name"] for f in manifest.get("fabrics", [])}
     seen = set()
     for s in seqs:
@@ -68,11 +79,14 @@ def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Pa
         with np.load(root / s["labels"]) as z:
             k = int(np.argmax(z["normal_force_n"]))
         frames = read_video(root / s["video"])
-        tiles.append(_label(_tile(frames[k], tile_px), f"{s['fabric_id']} {names.get(s['fabric_id'], '')}"[:28]))
-    if tiles:
-        p = out_dir / "contact_sheet.png"
-        write_png(p, _grid(tiles, min(10, len(tiles))))
-        written.append(p)
+        name = f"{s['fabric_id']} {names.get(s['fabric_id'], '')}"[:28]
+        tiles.append(_label(_tile(frames[k], tile_px), name))
+        crops.append(_label(centre_crop(frames[k], tile_px, round(tile_px * 3 / 4)), name))
+    for sheet, parts in (("contact_sheet", tiles), ("texture_sheet", crops)):
+        if parts:
+            p = out_dir / f"{sheet}.png"
+            write_png(p, _grid(parts, min(10, len(parts))))
+            written.append(p)
     return written
 
 

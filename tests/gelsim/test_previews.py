@@ -36,6 +36,35 @@ def test_generate_writes_the_statistics_with_the_previews(tiny):
     assert not list(prev.glob("*.tmp*")) and not list(prev.glob(".*partial*"))
 
 
+def test_texture_sheet_shows_each_fabrics_frame_centre_at_its_own_pixels(tiny):
+    import cv2
+
+    from gelsim.video import read_video
+
+    m = load_manifest(tiny)
+    sheet = cv2.imread(str(tiny / "previews" / "texture_sheet.png"))[:, :, ::-1]
+    firsts = {}
+    for s in m["sequences"]:
+        firsts.setdefault(s["fabric_id"], s)
+    th, tw = 72, 96   # frames smaller than the 160 x 120 tile are shown whole
+    assert sheet.shape == (th, tw * len(firsts), 3)
+    for i, s in enumerate(firsts.values()):
+        with np.load(tiny / s["labels"]) as z:
+            k = int(np.argmax(z["normal_force_n"]))
+        frame = read_video(tiny / s["video"])[k]
+        tile = sheet[:, i * tw:(i + 1) * tw]
+        below_label = slice(20, th)   # the label's two outlined lines end above row 20
+        assert np.array_equal(tile[below_label], frame[below_label])
+
+
+def test_centre_crop_takes_the_middle_pixels():
+    from gelsim.previews import centre_crop
+
+    f = np.arange(10 * 12 * 3, dtype=np.uint8).reshape(10, 12, 3)
+    assert np.array_equal(centre_crop(f, 4, 2), f[4:6, 4:8])
+    assert centre_crop(f, 40, 20).shape == f.shape
+
+
 def test_action_sheet_shows_every_action_with_crop_and_contact(tiny):
     m = load_manifest(tiny)
     sheet = action_sheet(tiny, m, tile_px=96)
