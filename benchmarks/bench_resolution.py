@@ -100,6 +100,166 @@ def point_preset(out: Path, px: int, crop: float, pretrain_epochs: int | None) -
     return path
 
 
+# The probe's features: the log power of each colour channel's spectrum in bands of spatial frequency on
+# the gel (cycles per mm; pitches from 4 mm down to 0.02 mm) and orientation. Only the bands wholly below
+# a point's Nyquist frequency exist there: what a coarser input cannot resolve is absent, not aliased.
+PROBE_BANDS_CPMM = np.geomspace(0.25, 50.0, 25)
+PROBE_ORIENTATIONS = 6
+PROBE_WEIGHT_DECAYS = (1e-4, 1e-3, 1e-2)   # picked per point on the validation split
+PROBE_STEPS = 300                          # full-batch Adam steps of the linear classifier
+PROBE_LR = 0.01
+
+
+class SpectrumBands:
+    """The band of each frequency sample of an ``(rows, cols)`` input whose pixels are ``mm_y`` x ``mm_x`` of gel.
+
+    ``features(img)``: float32 ``(F,)`` for a uint8 ``(rows, cols, 3)`` image: per channel, log10 of the mean
+    power in each band (the image's mean removed, a Hann window applied), then each channel's mean level
+    (the shading). ``F = 3 (bands + 1)``."""
+
+    def __init__(self, rows: int, cols: int, mm_y: float, mm_x: float):
+        fy = np.fft.fftfreq(rows, d=mm_y)[:, None]
+        fx = np.fft.rfftfreq(cols, d=mm_x)[None, :]
+        r = np.hypot(fy, fx)
+        theta = np.mod(np.arctan2(fy, fx), np.pi)
+        radial = np.digitize(r, PROBE_BANDS_CPMM) - 1              # -1 below the first edge
+        nyquist = min(0.5 / mm_y, 0.5 / mm_x)
+        n_radial = int(np.searchsorted(PROBE_BANDS_CPMM, nyquist, side="right")) - 1   # bands below Nyquist
+        angle = np.minimum((theta / np.pi * PROBE_ORIENTATIONS).astype(int), PROBE_ORIENTATIONS - 1)
+        band = np.where((radial >= 0) & (radial < n_radial), radial * PROBE_ORIENTATIONS + angle, -1)
+        counts = np.bincount(band[band >= 0].ravel(), minlength=max(1, n_radial) * PROBE_ORIENTATIONS)
+        self.keep = np.flatnonzero(counts > 0)                      # bands holding a frequency sample
+        self.band = band.ravel()
+        self.inside = self.band >= 0
+        self.counts = counts
+        self.window = (np.hanning(rows)[:, None] * np.hanning(cols)[None, :]).astype(np.float32)
+        self.size = 3 * (self.keep.size + 1)
+
+    def features(self, img: np.ndarray) -> np.ndarray:
+        x = img.astype(np.float32) / 255.0
+        mean = x.mean(axis=(0, 1))
+        out = []
+        for c in range(3):
+            power = np.abs(np.fft.rfft2((x[..., c] - mean[c]) * self.window)) ** 2
+            sums = np.bincount(self.band[self.inside], weights=power.ravel()[self.inside], minlength=self.counts.size)
+            out.append(np.log10(sums[self.keep] / self.counts[self.keep] + 1e-12))
+        return np.concatenate(out + [mean]).astype(np.float32)
+
+
+def _input(frame: np.ndarray, px: int, crop: float) -> np.ndarray:
+    """What the model sees at (px, crop): stam's centred crop (crop < 1; the whole frame at 1) at px x px."""
+    import cv2
+
+    h, w = frame.shape[:2]
+    if crop < 1.0:
+        side = max(1, round(crop * min(h, w)))
+        y0, x0 = (h - side) // 2, (w - side) // 2
+        frame = frame[y0:y0 + side, x0:x0 + side]
+    if frame.shape[:2] == (px, px):
+        return frame
+    return cv2.resize(frame, (px, px), interpolation=cv2.INTER_AREA)
+
+
+def probe_features(data: Path, out: Path, points, shape: tuple[int, int], mm_per_px: float, *, quiet: bool = False):
+    """Every sequence's in-contact frames (from the onset detected in the images, as stam's pretraining
+    takes them) as :class:`SpectrumBands` features at each point, decoding each video once; cached in
+    ``OUT/probe_features.npz``. Returns (features per point, float32 (frames, F); the frames' sequence
+    index; the sequences' ids, labels and splits)."""
+    from gelsim.video import read_video
+    from stam.data import DEFAULT_ONSET_THRESHOLD, TactileDataset, contact_scores, detect_onset
+
+    ds = TactileDataset(data)
+    seqs = ds.sequences
+    names = [f"s{px}-c{crop:g}" for px, crop in points]
+    cache = out / "probe_features.npz"
+    meta = {"ids": [q.id for q in seqs], "points": names, "bands": PROBE_BANDS_CPMM.tolist(),
+            "orientations": PROBE_ORIENTATIONS}
+    if cache.is_file():
+        with np.load(cache) as z:
+            if json.loads(str(z["meta"])) == meta:
+                return [z[n] for n in names], z["seq"], seqs
+    h, w = shape
+    bands = []
+    for px, crop in points:
+        view_y = (crop * min(h, w) if crop < 1 else h) * mm_per_px
+        view_x = (crop * min(h, w) if crop < 1 else w) * mm_per_px
+        bands.append(SpectrumBands(px, px, view_y / px, view_x / px))
+    feats = [[] for _ in points]
+    owner = []
+    from tqdm import tqdm
+
+    for i, q in enumerate(tqdm(seqs, desc="probe features", disable=quiet)):
+        frames = read_video(q.video)
+        scores, noise = contact_scores(frames)
+        onset = detect_onset(scores, DEFAULT_ONSET_THRESHOLD, noise)
+        for f in frames[onset if onset is not None else 0:]:
+            owner.append(i)
+            for k, (px, crop) in enumerate(points):
+                feats[k].append(bands[k].features(_input(f, px, crop)))
+    feats = [np.stack(f) for f in feats]
+    owner = np.asarray(owner, np.int32)
+    from gelsim.atomic import atomic_open
+
+    with atomic_open(cache) as fh:
+        np.savez(fh, meta=json.dumps(meta), seq=owner, **dict(zip(names, feats)))
+    return feats, owner, seqs
+
+
+def probe_correct(x: np.ndarray, owner: np.ndarray, seqs) -> tuple[dict[str, float], float, float]:
+    """A linear classifier (multinomial logistic regression, standardised features, full-batch Adam) trained
+    on the training sequences' frames, its weight decay picked on the validation sequences; a sequence's
+    prediction is the mean of its frames' log-probabilities. Returns (test id -> 1/0 correct, validation
+    accuracy, the weight decay)."""
+    import torch
+
+    split = np.array([q.split for q in seqs])[owner]
+    labels = torch.as_tensor(np.array([q.label for q in seqs])[owner], dtype=torch.long)
+    tr = split == "train"
+    mu, sd = x[tr].mean(axis=0), x[tr].std(axis=0) + 1e-6
+    xt = torch.as_tensor((x - mu) / sd, dtype=torch.float32)
+    n_cls = int(max(q.label for q in seqs)) + 1
+    own = torch.as_tensor(owner, dtype=torch.long)
+
+    def fit(wd):
+        torch.manual_seed(0)
+        model = torch.nn.Linear(xt.shape[1], n_cls)
+        opt = torch.optim.Adam(model.parameters(), lr=PROBE_LR, weight_decay=wd)
+        idx = torch.as_tensor(np.flatnonzero(tr))
+        for _ in range(PROBE_STEPS):
+            opt.zero_grad()
+            torch.nn.functional.cross_entropy(model(xt[idx]), labels[idx]).backward()
+            opt.step()
+        return model
+
+    def per_sequence(model, name):
+        rows = np.flatnonzero(split == name)
+        with torch.no_grad():
+            logp = torch.log_softmax(model(xt[rows]), dim=1)
+        total = torch.zeros(len(seqs), n_cls).index_add_(0, own[rows], logp)
+        pred = total.argmax(dim=1).numpy()
+        return {seqs[i].id: float(pred[i] == seqs[i].label) for i in sorted(set(owner[rows].tolist()))}
+
+    best = None
+    for wd in PROBE_WEIGHT_DECAYS:
+        model = fit(wd)
+        val = per_sequence(model, "val")
+        acc = float(np.mean(list(val.values())))
+        if best is None or acc > best[0]:
+            best = (acc, wd, model)
+    return per_sequence(best[2], "test"), best[0], best[1]
+
+
+def _probe_points(data: Path, out: Path, points, rows, shape, mm_per_px: float, *, quiet: bool):
+    """The probe at each point; per point, {"probe": test id -> correctness}."""
+    feats, owner, seqs = probe_features(data, out, points, shape, mm_per_px, quiet=quiet)
+    correct = []
+    for x, row in zip(feats, rows):
+        test, val_acc, wd = probe_correct(x, owner, seqs)
+        row.update(features=int(x.shape[1]), probe_val_acc=round(100 * val_acc, 1), weight_decay=wd)
+        correct.append({"probe": test})
+    return correct
+
+
 def _correct(run: Path, model: str, n: int) -> dict[str, float]:
     """Test sequence id -> correctness (seed-averaged) of one cell of a clean-setting run."""
     by_id: dict[str, list[float]] = {}
@@ -114,6 +274,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", required=True, help="a gelsim dataset (e.g. `gelsim generate --fabrics 100`)")
     ap.add_argument("--out", required=True, help="output directory (resumable)")
+    ap.add_argument("--method", choices=["stam", "probe"], default="stam",
+                    help="stam: the cpu preset's models (stam experiment); probe: a linear classifier on the "
+                         "frames' texture spectra (minutes, any resolution; see probe_features) (default: %(default)s)")
     ap.add_argument("--points", default="64:0.5,128:0.5,128:0.25,256:0.5",
                     help="input side px : crop fraction, comma-separated (default: %(default)s)")
     ap.add_argument("--per-fabric", default="10,3,5",
@@ -121,10 +284,10 @@ def main() -> int:
     ap.add_argument("--subset-dir", default=None, help="where the subset dataset goes (default: OUT/subset)")
     ap.add_argument("--base", default="128:0.5",
                     help="the point the others are compared with (default: the cpu preset's own, %(default)s)")
-    ap.add_argument("--pretrain-epochs", type=int, default=4, help="pretraining epochs per point (default: %(default)s)")
-    ap.add_argument("--models", nargs="+", default=["cnn", "stam"])
-    ap.add_argument("--frames", nargs="+", type=int, default=[2, 5])
-    ap.add_argument("--seeds", type=int, default=1)
+    ap.add_argument("--pretrain-epochs", type=int, default=4, help="stam: pretraining epochs per point (default: %(default)s)")
+    ap.add_argument("--models", nargs="+", default=["cnn", "stam"], help="stam: the models")
+    ap.add_argument("--frames", nargs="+", type=int, default=[2, 5], help="stam: window lengths n")
+    ap.add_argument("--seeds", type=int, default=1, help="stam: seeds per cell")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
@@ -148,6 +311,46 @@ def main() -> int:
 
     rows = []
     for px, crop in points:
+        view_mm = crop * min(h, w) * mm_per_px
+        rows.append({"px": px, "crop": crop, "view_mm": round(view_mm, 2), "mm_per_input_px": round(view_mm / px, 4)})
+    if args.method == "stam":
+        cols = [f"{m}_n{n}" for m in args.models for n in args.frames]
+        correct = _stam_points(data, out, points, rows, args)
+        extra = {"pretrain_epochs": args.pretrain_epochs, "seeds": args.seeds}
+    else:
+        cols = ["probe"]
+        correct = _probe_points(data, out, points, rows, (h, w), mm_per_px, quiet=args.json)
+        extra = {"probe": {"bands_cycles_per_mm": [float(PROBE_BANDS_CPMM[0]), float(PROBE_BANDS_CPMM[-1])],
+                           "band_edges": len(PROBE_BANDS_CPMM), "orientations": PROBE_ORIENTATIONS}}
+    _accuracies(rows, correct, cols, base_point)
+    summary = {"data": str(data), "method": args.method, "sequences": manifest["splits"], **extra,
+               "base_point": list(base_point), "points": rows}
+    stem = "resolution" if args.method == "stam" else "resolution_probe"
+    atomic_write_json(out / f"{stem}.json", summary)
+    _plot(out / f"{stem}.png", rows, cols, args.method)
+    if args.json:
+        print_json(summary)
+    else:
+        first = "pretrain val frame acc" if args.method == "stam" else "probe features"
+        print("| input px | crop | gel in view (mm) | mm per input px | " + first + " | "
+              + " | ".join(f"{c} test % [95% CI]" for c in cols)
+              + " | " + " | ".join(f"{c} minus base [95% CI]" for c in cols) + " |")
+        print("|---" * (5 + 2 * len(cols)) + "|")
+        for r in rows:
+            cells = [f"{r[c][0]} [{r[c][1]}, {r[c][2]}]" for c in cols]
+            diffs = [(lambda d: f"{d[0]:+.1f} [{d[1]:+.1f}, {d[2]:+.1f}]")(r[c + "_minus_base"])
+                     if c + "_minus_base" in r else "(base)" for c in cols]
+            lead = (f"{100 * r['pretrain_val_frame_acc']:.1f}%" if args.method == "stam" else str(r["features"]))
+            print(f"| {r['px']} | {r['crop']:g} | {r['view_mm']} | {r['mm_per_input_px']} | {lead} | "
+                  + " | ".join(cells + diffs) + " |")
+        print(f"(written: {out / (stem + '.json')}, {out / (stem + '.png')})")
+    return 0
+
+
+def _stam_points(data: Path, out: Path, points, rows, args) -> list[dict[str, dict[str, float]]]:
+    """Run (or read back) ``stam experiment`` at each point; per point, column -> test id -> correctness."""
+    correct = []
+    for (px, crop), row in zip(points, rows):
         name = f"s{px}-c{crop:g}"
         res_path = out / f"{name}.json"
         if res_path.is_file():
@@ -159,63 +362,44 @@ def main() -> int:
                                  log=None if args.json else print)
             res["wall_seconds"] = round(time.perf_counter() - t0, 1)
             atomic_write_json(res_path, res)
-        view_mm = crop * min(h, w) * mm_per_px
-        rows.append({"px": px, "crop": crop, "view_mm": round(view_mm, 2), "mm_per_input_px": round(view_mm / px, 4),
-                     "pretrain_val_frame_acc": res["pretrain"]["val_acc"], "run": str(out / f"out-{name}")})
-
-    # Test accuracy per (model, n) and the paired difference from the base point, on the same sequences.
-    base = next((r for r in rows if (r["px"], r["crop"]) == base_point), None)
-    for m in args.models:
-        for n in args.frames:
-            col = f"{m}_n{n}"
-            ref = _correct(Path(base["run"]), m, n) if base else None
-            for r in rows:
-                c = _correct(Path(r["run"]), m, n)
-                ids = sorted(c)
-                acc = bootstrap_intervals(np.array([[c[i]] for i in ids]))[0]
-                r[col] = [round(100 * v, 1) for v in acc]
-                if ref is not None and r is not base:
-                    d = bootstrap_intervals(np.array([[c[i] - ref[i]] for i in ids]))[0]
-                    r[col + "_minus_base"] = [round(100 * v, 1) for v in d]
-    summary = {"data": str(data), "sequences": manifest["splits"], "pretrain_epochs": args.pretrain_epochs,
-               "seeds": args.seeds, "base_point": list(base_point), "points": rows}
-    atomic_write_json(out / "resolution.json", summary)
-    _plot(out / "resolution.png", rows, args.models, args.frames)
-    if args.json:
-        print_json(summary)
-    else:
-        cols = [f"{m}_n{n}" for m in args.models for n in args.frames]
-        print("| input px | crop | gel in view (mm) | mm per input px | pretrain val frame acc | "
-              + " | ".join(f"{c} test % [95% CI]" for c in cols) + " |")
-        print("|---" * (5 + len(cols)) + "|")
-        for r in rows:
-            cells = [f"{r[c][0]} [{r[c][1]}, {r[c][2]}]" for c in cols]
-            print(f"| {r['px']} | {r['crop']:g} | {r['view_mm']} | {r['mm_per_input_px']} | "
-                  f"{100 * r['pretrain_val_frame_acc']:.1f}% | " + " | ".join(cells) + " |")
-        print(f"(written: {out / 'resolution.json'}, {out / 'resolution.png'})")
-    return 0
+        row.update(pretrain_val_frame_acc=res["pretrain"]["val_acc"], run=str(out / f"out-{name}"))
+        correct.append({f"{m}_n{n}": _correct(out / f"out-{name}", m, n) for m in args.models for n in args.frames})
+    return correct
 
 
-def _plot(path: Path, rows: list[dict], models: list[str], frames: list[int]) -> None:
+def _accuracies(rows, correct, cols, base_point) -> None:
+    """Each row's test accuracy per column, % [95% CI], and its paired difference from the base point's
+    (the same test sequences, the same bootstrap resamples)."""
+    base = next((i for i, r in enumerate(rows) if (r["px"], r["crop"]) == base_point), None)
+    for col in cols:
+        ref = correct[base][col] if base is not None else None
+        for i, r in enumerate(rows):
+            c = correct[i][col]
+            ids = sorted(c)
+            r[col] = [round(100 * v, 1) for v in bootstrap_intervals(np.array([[c[k]] for k in ids]))[0]]
+            if ref is not None and i != base:
+                d = bootstrap_intervals(np.array([[c[k] - ref[k]] for k in ids]))[0]
+                r[col + "_minus_base"] = [round(100 * v, 1) for v in d]
+
+
+def _plot(path: Path, rows: list[dict], cols: list[str], method: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4))
-    for m in models:
-        for n in frames:
-            col = f"{m}_n{n}"
-            for crop in sorted({r["crop"] for r in rows}):
-                pts = sorted((r["mm_per_input_px"], *r[col]) for r in rows if r["crop"] == crop)
-                x, y, lo, hi = (np.array(v) for v in zip(*pts))
-                ax.errorbar(x, y, yerr=[y - lo, hi - y], marker="o", capsize=3,
-                            label=f"{m} n={n}, crop {crop:g}")
+    for col in cols:
+        for crop in sorted({r["crop"] for r in rows}):
+            pts = sorted((r["mm_per_input_px"], *r[col]) for r in rows if r["crop"] == crop)
+            x, y, lo, hi = (np.array(v) for v in zip(*pts))
+            ax.errorbar(x, y, yerr=[y - lo, hi - y], marker="o", capsize=3,
+                        label=f"{col.replace('_n', ' n=')}, crop {crop:g}")
     ax.set_xscale("log")
     ax.invert_xaxis()
     ax.set_xlabel("mm of gel per input pixel (finer to the right)")
     ax.set_ylabel("test accuracy, % (95% CI)")
-    ax.set_title("Accuracy over input resolution (cpu preset)")
+    ax.set_title("Accuracy over input resolution: " + ("cpu preset" if method == "stam" else "texture-spectrum probe"))
     ax.legend(fontsize=7)
     fig.tight_layout()
     write_figure(path, fig, dpi=120)

@@ -4,6 +4,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from stam.config import load_preset
@@ -61,3 +62,39 @@ def test_two_points_with_paired_differences_and_resume(bench, synth, tmp_path, m
     assert bench.main() == 0
     assert json.loads(capsys.readouterr().out)["points"] == rows
     assert (tmp_path / "out" / "s64-c1.json").stat().st_mtime_ns == stamp
+
+
+def test_spectrum_bands_see_only_what_the_resolution_resolves(bench):
+    coarse = bench.SpectrumBands(32, 32, 0.1, 0.1)     # Nyquist 5 cycles/mm
+    fine = bench.SpectrumBands(128, 128, 0.025, 0.025)  # Nyquist 20 cycles/mm
+    assert coarse.size < fine.size
+    edges = bench.PROBE_BANDS_CPMM
+    top = lambda b: edges[b.keep.max() // bench.PROBE_ORIENTATIONS + 1]  # noqa: E731  (upper edge of its last band)
+    assert top(coarse) <= 5.0 < top(fine) <= 20.0
+    # A grating of 8 cycles/mm along x puts its power in the band holding 8 cycles/mm, orientation 0.
+    yy, xx = np.mgrid[0:128, 0:128]
+    img = np.repeat((128 + 60 * np.cos(2 * np.pi * 8.0 * xx * 0.025))[..., None], 3, axis=2).astype(np.uint8)
+    f = fine.features(img)
+    per_channel = (fine.size - 3) // 3
+    loudest = fine.keep[int(np.argmax(f[:per_channel]))]
+    radial, angle = divmod(loudest, bench.PROBE_ORIENTATIONS)
+    assert edges[radial] <= 8.0 < edges[radial + 1] and angle == 0
+    assert f[-3:] == pytest.approx([img[..., c].mean() / 255 for c in range(3)], rel=1e-5)
+
+
+def test_probe_ranks_resolutions_on_the_tiny_dataset(bench, synth, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "probe"
+    argv = ["bench_resolution.py", "--method", "probe", "--data", str(synth), "--out", str(out),
+            "--points", "32:1,64:1", "--base", "64:1", "--per-fabric", "all", "--json"]
+    monkeypatch.setattr(sys, "argv", argv)
+    assert bench.main() == 0
+    rows = json.loads(capsys.readouterr().out)["points"]
+    assert rows[0]["features"] < rows[1]["features"]
+    for r in rows:
+        mean, lo, hi = r["probe"]
+        assert 0 <= lo <= mean <= hi <= 100
+        assert r["probe_val_acc"] > 25   # 4 fabrics: chance is 25%; the synthetic textures differ plainly
+    assert rows[0]["probe_minus_base"][0] == pytest.approx(rows[0]["probe"][0] - rows[1]["probe"][0], abs=0.11)
+    cached = (out / "probe_features.npz").stat().st_mtime_ns
+    assert bench.main() == 0 and json.loads(capsys.readouterr().out)["points"] == rows
+    assert (out / "probe_features.npz").stat().st_mtime_ns == cached
