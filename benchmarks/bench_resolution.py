@@ -108,6 +108,7 @@ PROBE_ORIENTATIONS = 6
 PROBE_WEIGHT_DECAYS = (1e-4, 1e-3, 1e-2)   # picked per point on the validation split
 PROBE_STEPS = 300                          # full-batch Adam steps of the linear classifier
 PROBE_LR = 0.01
+PROBE_FRAME_STRIDE = 2                     # every 2nd in-contact frame, as the cpu preset's pretraining
 
 
 class SpectrumBands:
@@ -126,24 +127,30 @@ class SpectrumBands:
         nyquist = min(0.5 / mm_y, 0.5 / mm_x)
         n_radial = int(np.searchsorted(PROBE_BANDS_CPMM, nyquist, side="right")) - 1   # bands below Nyquist
         angle = np.minimum((theta / np.pi * PROBE_ORIENTATIONS).astype(int), PROBE_ORIENTATIONS - 1)
-        band = np.where((radial >= 0) & (radial < n_radial), radial * PROBE_ORIENTATIONS + angle, -1)
-        counts = np.bincount(band[band >= 0].ravel(), minlength=max(1, n_radial) * PROBE_ORIENTATIONS)
+        band = np.where((radial >= 0) & (radial < n_radial), radial * PROBE_ORIENTATIONS + angle, -1).ravel()
+        nb = max(1, n_radial) * PROBE_ORIENTATIONS
+        counts = np.bincount(band[band >= 0], minlength=nb)
         self.keep = np.flatnonzero(counts > 0)                      # bands holding a frequency sample
-        self.band = band.ravel()
-        self.inside = self.band >= 0
-        self.counts = counts
-        self.window = (np.hanning(rows)[:, None] * np.hanning(cols)[None, :]).astype(np.float32)
+        # The spectrum's samples in a band, as flat indices into the (rows, cols // 2 + 1, 3) power array,
+        # and their band per channel (band + channel * nb): one bincount sums all three channels.
+        inside = np.flatnonzero(band >= 0)
+        self.samples = (inside[:, None] * 3 + np.arange(3)[None, :]).ravel()
+        self.bins = (band[inside][:, None] + nb * np.arange(3)[None, :]).ravel()
+        self.nb = nb
+        self.mean_power_of = (np.arange(3)[:, None] * nb + self.keep[None, :]).ravel()
+        self.norm = np.tile(counts[self.keep], 3).astype(np.float64)
+        self.window = (np.hanning(rows)[:, None] * np.hanning(cols)[None, :]).astype(np.float32)[..., None]
         self.size = 3 * (self.keep.size + 1)
 
     def features(self, img: np.ndarray) -> np.ndarray:
-        x = img.astype(np.float32) / 255.0
+        import scipy.fft
+
+        x = img.astype(np.float32) / np.float32(255.0)
         mean = x.mean(axis=(0, 1))
-        out = []
-        for c in range(3):
-            power = np.abs(np.fft.rfft2((x[..., c] - mean[c]) * self.window)) ** 2
-            sums = np.bincount(self.band[self.inside], weights=power.ravel()[self.inside], minlength=self.counts.size)
-            out.append(np.log10(sums[self.keep] / self.counts[self.keep] + 1e-12))
-        return np.concatenate(out + [mean]).astype(np.float32)
+        z = scipy.fft.rfft2((x - mean) * self.window, axes=(0, 1))       # single precision, all channels
+        power = (z.real * z.real + z.imag * z.imag).ravel()
+        sums = np.bincount(self.bins, weights=power[self.samples], minlength=3 * self.nb)
+        return np.concatenate([np.log10(sums[self.mean_power_of] / self.norm + 1e-12), mean]).astype(np.float32)
 
 
 def _input(frame: np.ndarray, px: int, crop: float) -> np.ndarray:
@@ -161,8 +168,8 @@ def _input(frame: np.ndarray, px: int, crop: float) -> np.ndarray:
 
 
 def probe_features(data: Path, out: Path, points, shape: tuple[int, int], mm_per_px: float, *, quiet: bool = False):
-    """Every sequence's in-contact frames (from the onset detected in the images, as stam's pretraining
-    takes them) as :class:`SpectrumBands` features at each point, decoding each video once; cached in
+    """Every sequence's in-contact frames (from the onset detected in the images; every PROBE_FRAME_STRIDE-th,
+    as stam's pretraining takes them) as :class:`SpectrumBands` features at each point, decoding each video once; cached in
     ``OUT/probe_features.npz``. Returns (features per point, float32 (frames, F); the frames' sequence
     index; the sequences' ids, labels and splits)."""
     from gelsim.video import read_video
@@ -173,7 +180,7 @@ def probe_features(data: Path, out: Path, points, shape: tuple[int, int], mm_per
     names = [f"s{px}-c{crop:g}" for px, crop in points]
     cache = out / "probe_features.npz"
     meta = {"ids": [q.id for q in seqs], "points": names, "bands": PROBE_BANDS_CPMM.tolist(),
-            "orientations": PROBE_ORIENTATIONS}
+            "orientations": PROBE_ORIENTATIONS, "stride": PROBE_FRAME_STRIDE}
     if cache.is_file():
         with np.load(cache) as z:
             if json.loads(str(z["meta"])) == meta:
@@ -192,7 +199,7 @@ def probe_features(data: Path, out: Path, points, shape: tuple[int, int], mm_per
         frames = read_video(q.video)
         scores, noise = contact_scores(frames)
         onset = detect_onset(scores, DEFAULT_ONSET_THRESHOLD, noise)
-        for f in frames[onset if onset is not None else 0:]:
+        for f in frames[onset if onset is not None else 0::PROBE_FRAME_STRIDE]:
             owner.append(i)
             for k, (px, crop) in enumerate(points):
                 feats[k].append(bands[k].features(_input(f, px, crop)))
