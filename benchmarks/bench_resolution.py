@@ -153,27 +153,13 @@ class SpectrumBands:
         return np.concatenate([np.log10(sums[self.mean_power_of] / self.norm + 1e-12), mean]).astype(np.float32)
 
 
-def _input(frame: np.ndarray, px: int, crop: float) -> np.ndarray:
-    """What the model sees at (px, crop): stam's centred crop (crop < 1; the whole frame at 1) at px x px."""
-    import cv2
-
-    h, w = frame.shape[:2]
-    if crop < 1.0:
-        side = max(1, round(crop * min(h, w)))
-        y0, x0 = (h - side) // 2, (w - side) // 2
-        frame = frame[y0:y0 + side, x0:x0 + side]
-    if frame.shape[:2] == (px, px):
-        return frame
-    return cv2.resize(frame, (px, px), interpolation=cv2.INTER_AREA)
-
-
 def probe_features(data: Path, out: Path, points, shape: tuple[int, int], mm_per_px: float, *, quiet: bool = False):
     """Every sequence's in-contact frames (from the onset detected in the images; every PROBE_FRAME_STRIDE-th,
     as stam's pretraining takes them) as :class:`SpectrumBands` features at each point, decoding each video once; cached in
     ``OUT/probe_features.npz``. Returns (features per point, float32 (frames, F); the frames' sequence
     index; the sequences' ids, labels and splits)."""
     from gelsim.video import read_video
-    from stam.data import DEFAULT_ONSET_THRESHOLD, TactileDataset, contact_scores, detect_onset
+    from stam.data import DEFAULT_ONSET_THRESHOLD, TactileDataset, contact_scores, detect_onset, model_input
 
     ds = TactileDataset(data)
     seqs = ds.sequences
@@ -202,7 +188,7 @@ def probe_features(data: Path, out: Path, points, shape: tuple[int, int], mm_per
         for f in frames[onset if onset is not None else 0::PROBE_FRAME_STRIDE]:
             owner.append(i)
             for k, (px, crop) in enumerate(points):
-                feats[k].append(bands[k].features(_input(f, px, crop)))
+                feats[k].append(bands[k].features(model_input(f, px, crop)))
     feats = [np.stack(f) for f in feats]
     owner = np.asarray(owner, np.int32)
     from gelsim.atomic import atomic_open

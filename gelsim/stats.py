@@ -183,7 +183,7 @@ def check_crop(fraction: float) -> float:
 
 
 def crop_box_px(width_px: int, height_px: int, fraction: float = STAM_CPU_CROP) -> tuple[float, float, float, float]:
-    """Edges (x0, y0, x1, y1), px, of the centred square stam keeps (``stam.data.TactileDataset._crop``):
+    """Edges (x0, y0, x1, y1), px, of the centred square stam keeps (``stam.data.centre_square``):
     side ``round(fraction * min(W, H))``, pixel centres at integers."""
     check_crop(fraction)
     side = max(1, round(fraction * min(height_px, width_px)))

@@ -81,6 +81,23 @@ ONSET_DRIFT_FACTOR = 2.0
 NOISE_FACTOR = 6.0
 
 
+def centre_square(frame: np.ndarray, crop: float) -> np.ndarray:
+    """The centred square of side ``round(crop * min(H, W))`` of ``frame`` (a view); the whole frame at crop 1
+    (``gelsim.stats.crop_box_px`` draws the same box on the previews)."""
+    if crop == 1.0:
+        return frame
+    h, w = frame.shape[:2]
+    side = max(1, round(crop * min(h, w)))
+    y0, x0 = (h - side) // 2, (w - side) // 2
+    return frame[y0:y0 + side, x0:x0 + side]
+
+
+def model_input(frame: np.ndarray, size: int, crop: float = 1.0) -> np.ndarray:
+    """What the models see of a ``uint8 (H, W, 3)`` frame: :func:`centre_square` at ``crop``, squashed to
+    ``size x size`` px by area averaging."""
+    return cv2.resize(centre_square(frame, crop), (size, size), interpolation=cv2.INTER_AREA)
+
+
 def load_manifest(data_dir: str | Path) -> dict:
     """Read and check ``DIR/manifest.json``; raise StamError for a missing, foreign or
     incomplete dataset."""
@@ -267,17 +284,8 @@ class TactileDataset:
             scores, noise = contact_scores(frames)
             _save_atomic(spath, scores=scores, noise_dn=np.float32(noise))
         if not fpath.is_file():
-            small = np.stack([cv2.resize(self._crop(f), (size, size), interpolation=cv2.INTER_AREA)
-                              for f in frames])
+            small = np.stack([model_input(f, size, self.crop) for f in frames])
             _save_atomic(fpath, small)
-
-    def _crop(self, frame: np.ndarray) -> np.ndarray:
-        if self.crop == 1.0:
-            return frame
-        h, w = frame.shape[:2]
-        side = max(1, round(self.crop * min(h, w)))
-        y0, x0 = (h - side) // 2, (w - side) // 2
-        return frame[y0:y0 + side, x0:x0 + side]
 
     def frames(self, seq: Sequence, size: int) -> np.ndarray:
         """``uint8 (T, size, size, 3)`` RGB frames of ``seq`` (memory-mapped from the cache)."""

@@ -4,7 +4,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
-import types
 from pathlib import Path
 
 import numpy as np
@@ -231,14 +230,14 @@ def test_sequence_without_contact_gives_nan_not_an_error():
 
 def test_crop_matches_stam():
     """The crop gelsim measures is the one stam's cpu preset feeds its models."""
-    from stam.data import TactileDataset
+    from stam.data import centre_square
 
     cfg = tomllib.loads((ROOT / "stam" / "configs" / "cpu.toml").read_text())
     assert cfg["train"]["crop"] == STAM_CPU_CROP
     for w, h in ((320, 240), (960, 720), (97, 61)):
         ys, xs = np.mgrid[0:h, 0:w]
         frame = np.stack([xs, ys, np.zeros_like(xs)], -1)
-        kept = TactileDataset._crop(types.SimpleNamespace(crop=STAM_CPU_CROP), frame)
+        kept = centre_square(frame, STAM_CPU_CROP)
         x0, y0, x1, y1 = crop_box_px(w, h, STAM_CPU_CROP)
         assert (kept[0, 0, 0], kept[0, 0, 1]) == (x0 + 0.5, y0 + 0.5)
         assert (kept[-1, -1, 0], kept[-1, -1, 1]) == (x1 - 0.5, y1 - 0.5)
