@@ -389,6 +389,9 @@ def _plot(path: Path, rows: list[dict], cols: list[str], method: str) -> None:
             ax.errorbar(x, y, yerr=[y - lo, hi - y], marker="o", capsize=3,
                         label=f"{col.replace('_n', ' n=')}, crop {crop:g}")
     ax.set_xscale("log")
+    ticks = sorted({r["mm_per_input_px"] for r in rows})
+    ax.set_xticks(ticks, [f"{t:.3g}" for t in ticks], fontsize=7)
+    ax.minorticks_off()
     ax.invert_xaxis()
     ax.set_xlabel("mm of gel per input pixel (finer to the right)")
     ax.set_ylabel("test accuracy, % (95% CI)")
