@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gelsim.atomic import atomic_write_json, atomic_write_text, write_figure
+from gelsim.atomic import atomic_open, atomic_write_json, atomic_write_text, write_figure
 from gelsim.cli import print_json, run_script
 from gelsim.errors import GelsimError
 from stam.config import CONFIG_DIR
@@ -161,7 +161,7 @@ def probe_features(data: Path, out: Path, points, shape: tuple[int, int], mm_per
     """Every sequence's in-contact frames (from the onset detected in the images; every PROBE_FRAME_STRIDE-th,
     as stam's pretraining takes them) as :class:`SpectrumBands` features at each point, decoding each video once; cached in
     ``OUT/probe_features.npz``. Returns (features per point, float32 (frames, F); the frames' sequence
-    index; the sequences' ids, labels and splits)."""
+    index; the dataset's sequences, whose id, label and split the classifier reads)."""
     from gelsim.video import read_video
     from stam.data import DEFAULT_ONSET_THRESHOLD, TactileDataset, contact_scores, detect_onset, model_input
 
@@ -195,8 +195,6 @@ def probe_features(data: Path, out: Path, points, shape: tuple[int, int], mm_per
                 feats[k].append(bands[k].features(model_input(f, px, crop)))
     feats = [np.stack(f) for f in feats]
     owner = np.asarray(owner, np.int32)
-    from gelsim.atomic import atomic_open
-
     with atomic_open(cache) as fh:
         np.savez(fh, meta=json.dumps(meta), seq=owner, **dict(zip(names, feats)))
     return feats, owner, seqs

@@ -16,8 +16,8 @@ from .shader import Shader
 
 def imprint_extent(depth_mm: np.ndarray) -> tuple[int, int, int, int] | None:
     """``(row0, row1, col0, col1)``, end exclusive, of the box where ``depth_mm > 0``; None if flat.
-    (A comparison and OpenCV's bounding box: 0.08 ms at 960x720, against 0.25 ms for numpy's row and
-    column maxima.)"""
+    (A comparison and OpenCV's bounding box: about 0.15 ms at 960x720, against 0.25 ms for numpy's row
+    and column maxima, measured on this project's loaded 2-core machine.)"""
     return bbox(np.asarray(depth_mm) > 0)
 
 

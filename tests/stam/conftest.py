@@ -2,7 +2,6 @@ import pytest
 import torch
 
 
-
 @pytest.fixture(scope="session", autouse=True)
 def _one_thread():
     # Tiny tensors on a shared 2-core machine: one thread avoids spin contention.
