@@ -126,15 +126,27 @@ def _check_rest(rest, profile, seed):
     return r
 
 
-def _screened(field: np.ndarray, ell_cells: float, pad: int) -> tuple[np.ndarray, np.ndarray]:
-    """FFT of the zero-padded field and the screened-Poisson multiplier -1/(q^2 + 1/l^2)."""
-    hp, wp = field.shape[0] + 2 * pad, field.shape[1] + 2 * pad
-    big = np.zeros((hp, wp))
-    big[pad:pad + field.shape[0], pad:pad + field.shape[1]] = field
+def _screened(fields: np.ndarray, ell_cells: float, pad: int) -> np.ndarray:
+    """The screened-Poisson potentials ``(lap - 1/l^2) Phi = field`` of ``fields`` (float64
+    ``(k, h, w)``), zero-padded by ``pad`` cells: float64 ``(k, h, w)``. One FFT pair for the k fields
+    (the same transforms, line for line, as one call each)."""
+    k, h, w = fields.shape
+    big = np.zeros((k, h + 2 * pad, w + 2 * pad))
+    big[:, pad:pad + h, pad:pad + w] = fields
+    spec = np.fft.rfft2(big)
+    spec *= _screen_multiplier(h + 2 * pad, w + 2 * pad, float(ell_cells))
+    return np.fft.irfft2(spec, s=big.shape[1:])[:, pad:pad + h, pad:pad + w]
+
+
+@functools.lru_cache(maxsize=64)
+def _screen_multiplier(hp: int, wp: int, ell_cells: float) -> np.ndarray:
+    """-1/(q^2 + 1/l^2) on the rfft2 grid of an (hp, wp) field (read-only, cached: a window's size
+    repeats from frame to frame)."""
     qy = 2 * np.pi * np.fft.fftfreq(hp)[:, None]
     qx = 2 * np.pi * np.fft.rfftfreq(wp)[None, :]
     mult = -1.0 / (qx * qx + qy * qy + 1.0 / (ell_cells * ell_cells))
-    return np.fft.rfft2(big), mult
+    mult.flags.writeable = False
+    return mult
 
 
 def _bilinear(field: np.ndarray, cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
@@ -202,12 +214,10 @@ def displacement_fields(profile, fidelity, imprint, *, shear_mm=(0.0, 0.0), twis
     amp = 3.0 / (2.0 * gel.thickness_mm)  # surface displacement per unit depth-averaged flux, 1/mm
     if fidelity.marker_model == "elastic":
         pad = int(math.ceil(3 * ell))  # the screened kernel is < 5% of its peak beyond 3 l
-        fd, mult = _screened(depth_c.astype(np.float64), ell, pad)
-        phi = np.fft.irfft2(fd * mult, s=(hc + 2 * pad, wc + 2 * pad))[pad:pad + hc, pad:pad + wc]
+        phi, spread = _screened(np.stack([depth_c, mask_c]).astype(np.float64), ell, pad)
         gy, gx = np.gradient(phi * cell_mm * cell_mm, cell_mm)
         ux, uy = amp * gx, amp * gy
-        fm, mult_m = _screened(mask_c.astype(np.float64), ell, pad)
-        spread = -np.fft.irfft2(fm * mult_m, s=(hc + 2 * pad, wc + 2 * pad))[pad:pad + hc, pad:pad + wc]
+        spread = -spread
     else:
         both = cv2.GaussianBlur(cv2.merge([depth_c, mask_c]), (0, 0), ell, borderType=cv2.BORDER_CONSTANT)
         gy, gx = np.gradient(both[..., 0].astype(np.float64), cell_mm)
