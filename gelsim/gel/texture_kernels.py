@@ -68,22 +68,28 @@ def widen(field: np.ndarray, nx: int) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
-def restore_band(t, tq, mean, inv_gain, share, fs: int):
+def restore_band(t, tq, mean, inv_gain, share, fs: int, dx: float):
     """The texture's band restored to its height, split from the finer relief.
 
     ``t``: the texture (mm, <= 0); ``tq``: ``t`` blurred (its own band, lowered by the blur's
     gain); ``mean``: the band's local mean; ``inv_gain``: 1 / gain; ``share``: the gel's share of
-    relief (coarse fields already :func:`widen`-ed). Returns (te = share * restored band, mm;
-    tf = t - restored band, mm; the cells' sums of tf^2). The restored band is
-    mean + (tq - mean) / gain: only the oscillation about the local mean was lowered by the blur.
-    (The reciprocal is interpolated, not the gain: a division per pixel took 0.9 ms at 960x720.)"""
+    relief (coarse fields already :func:`widen`-ed); ``dx``: mm per pixel. Returns (te = share *
+    restored band, mm; tf = t - restored band, mm; the cells' sums of tf^2; the cells' sums of
+    tf's squared slope, :func:`slope_sums` of tf). The restored band is mean + (tq - mean) / gain:
+    only the oscillation about the local mean was lowered by the blur. (The reciprocal is
+    interpolated, not the gain: a division per pixel took 0.9 ms at 960x720. tf's slopes are taken
+    one row behind, while its rows are in the cache: the same sums as slope_sums' own pass.)"""
     ny, nx = t.shape
     rows, cols = mean.shape[0], nx // fs
     ys0, ys1, wys = _rows(ny, fs, rows)
     te = np.empty_like(t)
     tf = np.empty_like(t)
     s_tf2 = np.zeros((rows, cols), np.float64)
+    s_g2 = np.zeros((rows, cols), np.float64)
     sq = np.empty(nx, np.float32)
+    h = np.float32(0.5 / dx)
+    gx = np.empty(nx, np.float32)
+    gy = np.empty(nx, np.float32)
     for i in range(ny):
         y0, y1, wy = ys0[i], ys1[i], wys[i]
         m0, m1, g0, g1, s0, s1 = mean[y0], mean[y1], inv_gain[y0], inv_gain[y1], share[y0], share[y1]
@@ -96,7 +102,11 @@ def restore_band(t, tq, mean, inv_gain, share, fs: int):
             tfi[j] = f
             sq[j] = f * f
         _add_cells(sq, fs, s_tf2, i // fs)
-    return te, tf, s_tf2
+        if i >= 1:
+            _slope_row(tf, i - 1, h, gx, gy, fs, s_g2)
+    if ny >= 1:
+        _slope_row(tf, ny - 1, h, gx, gy, fs, s_g2)
+    return te, tf, s_tf2, s_g2
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
@@ -168,6 +178,16 @@ def moment_sums(b, d: float, fs: int, rows: int, cols: int):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
+def _slope_row(tf, i: int, h, gx, gy, fs: int, out) -> None:
+    """Add row ``i``'s squared slopes |grad tf|^2 (:func:`_slopes`; ``gx``, ``gy`` work rows) to
+    the cell sums ``out`` (float64 (rows, cols))."""
+    _slopes(tf, i, h, gx, gy)
+    for j in range(gx.size):
+        gx[j] = gx[j] * gx[j] + gy[j] * gy[j]
+    _add_cells(gx, fs, out, i // fs)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
 def slope_sums(tf, dx: float, fs: int, rows: int, cols: int):
     """The cells' sums of the squared slope |grad tf|^2 (:func:`_slopes`, mm/mm), float64 ``(rows, cols)``."""
     ny, nx = tf.shape
@@ -176,10 +196,7 @@ def slope_sums(tf, dx: float, fs: int, rows: int, cols: int):
     gx = np.empty(nx, np.float32)
     gy = np.empty(nx, np.float32)
     for i in range(ny):
-        _slopes(tf, i, h, gx, gy)
-        for j in range(nx):
-            gx[j] = gx[j] * gx[j] + gy[j] * gy[j]
-        _add_cells(gx, fs, out, i // fs)
+        _slope_row(tf, i, h, gx, gy, fs, out)
     return out
 
 

@@ -277,8 +277,8 @@ def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float,
                                                           np.float32(S_MAX), *tables)
     cell_px = np.float32(fs * fs)
     if blurred:
-        te, tf, tf2_sum = kernels.restore_band(t, tq, kernels.widen(m_tq, NX), kernels.widen(inv_gain, NX),
-                                               kernels.widen(share, NX), fs)
+        te, tf, tf2_sum, tg2_sum = kernels.restore_band(t, tq, kernels.widen(m_tq, NX), kernels.widen(inv_gain, NX),
+                                                        kernels.widen(share, NX), fs, dx)
     else:
         te, tf = kernels.band_share(t, kernels.widen(share, NX), fs), None
     # The cut: the depth whose bearing area is the theory's contact fraction. The contact area
@@ -293,7 +293,7 @@ def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float,
         # The finer relief on the crowns in contact, at the crowns' pressure p / (contact fraction):
         # its height and mean slope are enough (its p* is taken as the 2-D wave's; tf has no mean).
         var_f = smooth((tf2_sum / cell_px).astype(np.float32))
-        g2 = smooth((kernels.slope_sums(tf, dx, fs, cs[1], cs[0]) / cell_px).astype(np.float32))
+        g2 = smooth((tg2_sum / cell_px).astype(np.float32))
         kept_f = kernels.fine_cells(var_f, g2, np.float32(dx), q_lo, np.float32(math.pi / dx), p_small, phi,
                                     *share_args, np.float32(S_MAX), *tables)
     # g = te where te >= -cut (in contact: plus the finer relief it prints), else

@@ -31,12 +31,15 @@ def test_restore_band_equals_the_opencv_passes(fs):
     _, shape, t, (mean, gain, share, _) = _case(fs)
     tq = cv2.GaussianBlur(t, (0, 0), 1.0, borderType=cv2.BORDER_REPLICATE)
     nx = shape[1]
-    te, tf, sums = K.restore_band(t, tq, K.widen(mean, nx), K.widen(1.0 / gain, nx), K.widen(share, nx), fs)
+    te, tf, sums, slopes = K.restore_band(t, tq, K.widen(mean, nx), K.widen(1.0 / gain, nx), K.widen(share, nx),
+                                          fs, 0.02)
     m = _grow(mean, shape)
     band = m + (tq - m) * _grow(1.0 / gain, shape)
     assert np.allclose(te, band * _grow(share, shape), atol=1e-6)
     assert np.allclose(tf, t - band, atol=1e-6)
     assert np.allclose(sums / fs**2, _cells((t - band) ** 2, fs), rtol=1e-4, atol=1e-9)
+    # tf's slopes, taken one row behind inside the pass: slope_sums' own pass over tf, bit for bit
+    assert np.array_equal(slopes, K.slope_sums(tf, 0.02, fs, *sums.shape))
     assert np.allclose(K.band_share(t, K.widen(share, nx), fs), t * _grow(share, shape), atol=1e-7)
 
 
