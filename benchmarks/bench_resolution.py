@@ -9,8 +9,9 @@ of gel per input pixel say what the model can resolve: a weave of pitch p needs 
 
 The full cpu preset costs 36 min of pretraining per point on 2 cores at 128 px, 4x that at 256 px.
 ``--per-fabric`` sizes the run: a subset of the dataset's sequences (the first k of each fabric and split, a
-manifest beside symlinks to the videos, nothing copied). ``--pretrain-epochs`` defaults to the preset's 8:
-with 4, the backbone stayed at chance (it took off at epochs 2-4 at 128 px on 1,000 training sequences).
+manifest beside symlinks to the videos, nothing copied). ``--pretrain-epochs`` defaults to the preset's
+(16; the README's runs used 8): with 4, the backbone stayed at chance (it took off at epochs 2-4 at 128 px
+on 1,000 training sequences).
 Usage::
 
     python benchmarks/bench_resolution.py --data DATASET --out OUT \\
@@ -279,7 +280,8 @@ def main() -> int:
     ap.add_argument("--subset-dir", default=None, help="where the subset dataset goes (default: OUT/subset)")
     ap.add_argument("--base", default="128:0.5",
                     help="the point the others are compared with (default: the cpu preset's own, %(default)s)")
-    ap.add_argument("--pretrain-epochs", type=int, default=8, help="stam: pretraining epochs per point (default: %(default)s)")
+    ap.add_argument("--pretrain-epochs", type=int, default=None,
+                    help="stam: pretraining epochs per point (default: the cpu preset's)")
     ap.add_argument("--models", nargs="+", default=["cnn", "stam"], help="stam: the models")
     ap.add_argument("--frames", nargs="+", type=int, default=[2, 5], help="stam: window lengths n")
     ap.add_argument("--seeds", type=int, default=1, help="stam: seeds per cell")
@@ -311,7 +313,8 @@ def main() -> int:
     if args.method == "stam":
         cols = [f"{m}_n{n}" for m in args.models for n in args.frames]
         correct = _stam_points(data, out, points, rows, args)
-        extra = {"pretrain_epochs": args.pretrain_epochs, "seeds": args.seeds}
+        epochs = args.pretrain_epochs or tomllib.loads((CONFIG_DIR / "cpu.toml").read_text())["pretrain"]["epochs"]
+        extra = {"pretrain_epochs": epochs, "seeds": args.seeds}
     else:
         cols = ["probe"]
         correct = _probe_points(data, out, points, rows, (h, w), mm_per_px, quiet=args.json)

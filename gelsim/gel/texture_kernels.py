@@ -49,13 +49,21 @@ def _rows(n_px: int, fs: int, n_cells: int):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _add_cells(row, fs: int, sums, ci: int) -> None:
-    """Add ``row`` (NX,) to the cell sums of coarse row ``ci``, fs pixels per cell."""
-    for c in range(sums.shape[1]):
-        acc = 0.0
-        for j in range(c * fs, (c + 1) * fs):
-            acc += row[j]
-        sums[ci, c] += acc
+def _add_cells(row, fs: int, sums, ci: int, acc) -> None:
+    """Add ``row`` (NX,) to the cell sums of coarse row ``ci``, fs pixels per cell; ``acc``: a
+    float64 work row of at least ``sums.shape[1]``. Each cell's pixels are summed in float64 in
+    order, the cells side by side (pixel k of every cell, then k + 1): the loop over cells
+    vectorises, where one cell at a time (an inner loop of fs) did not (0.4 against 1.1 ms per
+    960x720 pass at fs = 6; the same sums, bit for bit)."""
+    cols = sums.shape[1]
+    for c in range(cols):
+        acc[c] = 0.0
+    for k in range(fs):
+        for c in range(cols):
+            acc[c] += row[c * fs + k]
+    s = sums[ci]
+    for c in range(cols):
+        s[c] += acc[c]
 
 
 def widen(field: np.ndarray, nx: int) -> np.ndarray:
@@ -86,6 +94,7 @@ def restore_band(t, tq, mean, inv_gain, share, fs: int, dx: float):
     tf = np.empty_like(t)
     s_tf2 = np.zeros((rows, cols), np.float64)
     s_g2 = np.zeros((rows, cols), np.float64)
+    acc = np.empty(cols, np.float64)
     sq = np.empty(nx, np.float32)
     h = np.float32(0.5 / dx)
     gx = np.empty(nx, np.float32)
@@ -101,11 +110,11 @@ def restore_band(t, tq, mean, inv_gain, share, fs: int, dx: float):
             tei[j] = band * (s0[j] + wy * (s1[j] - s0[j]))
             tfi[j] = f
             sq[j] = f * f
-        _add_cells(sq, fs, s_tf2, i // fs)
+        _add_cells(sq, fs, s_tf2, i // fs, acc)
         if i >= 1:
-            _slope_row(tf, i - 1, h, gx, gy, fs, s_g2)
+            _slope_row(tf, i - 1, h, gx, gy, fs, s_g2, acc)
     if ny >= 1:
-        _slope_row(tf, ny - 1, h, gx, gy, fs, s_g2)
+        _slope_row(tf, ny - 1, h, gx, gy, fs, s_g2, acc)
     return te, tf, s_tf2, s_g2
 
 
@@ -145,46 +154,47 @@ def _slopes(b, i: int, h: float, gx, gy) -> None:
 def moment_sums(b, d: float, fs: int, rows: int, cols: int):
     """The cells' sums of b, b^2, bx^2, by^2 and bx by (b's slopes by :func:`_slopes`, mm/mm, at
     ``d`` mm per pixel): float32 ``(rows, cols, 5)``, ``fs`` x ``fs`` pixels per cell. (The five sums
-    are gathered per cell in one loop: five row passes and their cell sums took twice as long, four
-    times at fs = 1, the half-resolution copy's usual cell.)"""
+    are gathered in one pass: five row passes and their cell sums took twice as long, four times at
+    fs = 1, the half-resolution copy's usual cell at fine pitches. Within a row the cells are summed
+    side by side, as in :func:`_add_cells`: 1.5 against 2.3 ms at fs = 1 on 480 x 360, the same sums.)"""
     ny, nx = b.shape
     out = np.zeros((rows, cols, 5), np.float64)
     h = np.float32(0.5 / d)
     gx = np.empty(nx, np.float32)
     gy = np.empty(nx, np.float32)
+    acc = np.empty((5, cols), np.float64)
+    a0, a1, a2, a3, a4 = acc[0], acc[1], acc[2], acc[3], acc[4]
     for i in range(ny):
         _slopes(b, i, h, gx, gy)
         bi = b[i]
         o = out[i // fs]
-        for c in range(cols):
-            s0 = 0.0
-            s1 = 0.0
-            s2 = 0.0
-            s3 = 0.0
-            s4 = 0.0
-            for j in range(c * fs, (c + 1) * fs):
+        acc[:] = 0.0
+        for k in range(fs):
+            for c in range(cols):
+                j = c * fs + k
                 v, x, y = bi[j], gx[j], gy[j]
-                s0 += v
-                s1 += v * v
-                s2 += x * x
-                s3 += y * y
-                s4 += x * y
-            o[c, 0] += s0
-            o[c, 1] += s1
-            o[c, 2] += s2
-            o[c, 3] += s3
-            o[c, 4] += s4
+                a0[c] += v
+                a1[c] += v * v
+                a2[c] += x * x
+                a3[c] += y * y
+                a4[c] += x * y
+        for c in range(cols):
+            o[c, 0] += a0[c]
+            o[c, 1] += a1[c]
+            o[c, 2] += a2[c]
+            o[c, 3] += a3[c]
+            o[c, 4] += a4[c]
     return out.astype(np.float32)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
-def _slope_row(tf, i: int, h, gx, gy, fs: int, out) -> None:
+def _slope_row(tf, i: int, h, gx, gy, fs: int, out, acc) -> None:
     """Add row ``i``'s squared slopes |grad tf|^2 (:func:`_slopes`; ``gx``, ``gy`` work rows) to
-    the cell sums ``out`` (float64 (rows, cols))."""
+    the cell sums ``out`` (float64 (rows, cols); ``acc`` as for :func:`_add_cells`)."""
     _slopes(tf, i, h, gx, gy)
     for j in range(gx.size):
         gx[j] = gx[j] * gx[j] + gy[j] * gy[j]
-    _add_cells(gx, fs, out, i // fs)
+    _add_cells(gx, fs, out, i // fs, acc)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
@@ -195,8 +205,9 @@ def slope_sums(tf, dx: float, fs: int, rows: int, cols: int):
     h = np.float32(0.5 / dx)
     gx = np.empty(nx, np.float32)
     gy = np.empty(nx, np.float32)
+    acc = np.empty(cols, np.float64)
     for i in range(ny):
-        _slope_row(tf, i, h, gx, gy, fs, out)
+        _slope_row(tf, i, h, gx, gy, fs, out, acc)
     return out
 
 
@@ -216,6 +227,7 @@ def press_texture(te, tf, cut, span, kept_f, fs: int, with_fine: bool):
     g = np.empty_like(te)
     touch = np.empty((ny, nx), np.bool_)
     s_g = np.zeros((rows, cols), np.float64)
+    acc = np.empty(cols, np.float64)
     zero = np.float32(0.0)
     for i in range(ny):
         y0, y1, wy = ys0[i], ys1[i], wys[i]
@@ -229,7 +241,7 @@ def press_texture(te, tf, cut, span, kept_f, fs: int, with_fine: bool):
             fine = tfi[j] * (k0[j] + wy * (k1[j] - k0[j])) if with_fine else zero
             gi[j] = e - (p0[j] + wy * (p1[j] - p0[j])) * below + (fine if inside else zero)
             touchi[j] = inside
-        _add_cells(gi, fs, s_g, i // fs)
+        _add_cells(gi, fs, s_g, i // fs, acc)
     return g, touch, s_g
 
 
