@@ -7,7 +7,8 @@ minutes at any resolution. Either way: the 95% interval of each accuracy and the
 cpu preset's own point (128 px of the central half; ``--base``) on the same test sequences. The millimetres
 of gel per input pixel say what the model can resolve: a weave of pitch p needs a few pixels per p.
 
-The full cpu preset costs 36 min of pretraining per point on 2 cores at 128 px, 4x that at 256 px.
+The full cpu preset's pretraining (16 epochs) costs about 30-60 min per point on 2 cores at 128 px, 4x that at
+256 px.
 ``--per-fabric`` sizes the run: a subset of the dataset's sequences (the first k of each fabric and split, a
 manifest beside symlinks to the videos, nothing copied). ``--pretrain-epochs`` defaults to the preset's
 (16; the README's runs used 8): with 4, the backbone stayed at chance (it took off at epochs 2-4 at 128 px

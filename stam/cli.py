@@ -143,11 +143,11 @@ TRAIN_HELP = """train one model (writes config.json, log.csv, last.pt, best.pt)
 The configuration is a preset (a TOML file of stam/configs/ or a path: [pretrain] and [train]),
 then --model/--frames/--start/--epochs/--seed, then --set KEY=VALUE. Without --preset:
   * no CUDA device: the cpu preset. AlexNet at width 0.5 on the central half of each frame at
-    128 px; its backbone is pretrained once on single training frames (8 epochs) and then frozen,
-    so only the attention modules and the head are trained. Measured on the 2,000 sequences of
-    `gelsim generate --preset cpu` on 2 busy cores: pretraining took 36 min and reached 11.9%
-    single-frame validation accuracy (100 classes, chance 1%; still climbing at its last epoch);
-    a model then trains in 5-50 s (STAM: 8.2% test accuracy at n = 2, 19.5% at n = 7).
+    128 px; its backbone is pretrained once on single training frames (16 epochs) and then
+    frozen, so only the attention modules and the head are trained. Measured on the 2,000
+    sequences of `gelsim generate --preset cpu` on 2 cores: pretraining took 28 min and reached
+    36.3% single-frame validation accuracy (100 classes, chance 1%); a model then trains in
+    8-70 s (STAM: 24.5% test accuracy at n = 2, 49.1% at n = 7).
     Reruns and --resume reuse the backbone. The library's own defaults (full AlexNet from
     scratch at 224 px, 58 M parameters) took 3-4 min per epoch there and were still at chance
     (1%) after 2 of their 30 epochs.
