@@ -199,7 +199,8 @@ def _slope_row(tf, i: int, h, gx, gy, fs: int, out, acc) -> None:
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
 def slope_sums(tf, dx: float, fs: int, rows: int, cols: int):
-    """The cells' sums of the squared slope |grad tf|^2 (:func:`_slopes`, mm/mm), float64 ``(rows, cols)``."""
+    """The cells' sums of the squared slope |grad tf|^2 (:func:`_slopes`, mm/mm), float64 ``(rows, cols)``:
+    a pass of its own over ``tf``, the reference for the sums :func:`restore_band` takes inside its pass."""
     ny, nx = tf.shape
     out = np.zeros((rows, cols), np.float64)
     h = np.float32(0.5 / dx)

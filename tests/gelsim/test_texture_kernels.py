@@ -43,6 +43,23 @@ def test_restore_band_equals_the_opencv_passes(fs):
     assert np.allclose(K.band_share(t, K.widen(share, nx), fs), t * _grow(share, shape), atol=1e-7)
 
 
+@pytest.mark.parametrize("fs", (1, 2, 3, 6))
+def test_cell_sums_add_each_cell_in_order(fs):
+    # The kernels sum the cells side by side so that the loop vectorises; each cell must still be
+    # the plain float64 sum of its pixels from left to right (the order the statistics were made in).
+    rng = np.random.default_rng(fs)
+    # magnitudes over 24 decades, so that float64 rounds the sums and their order shows
+    row = (rng.standard_normal(12 * fs) * 10.0 ** rng.uniform(-12, 12, 12 * fs)).astype(np.float32)
+    sums = np.full((2, 12), 0.25)
+    K._add_cells(row, fs, sums, 1, np.empty(12))
+    for c in range(12):
+        acc = 0.0
+        for v in row[c * fs:(c + 1) * fs]:
+            acc += float(v)
+        assert sums[1, c] == 0.25 + acc
+    assert np.all(sums[0] == 0.25)
+
+
 @pytest.mark.parametrize("fs", FS)
 def test_slope_and_moment_sums_equal_sobel_and_area_average(fs):
     _, shape, t, _ = _case(fs, seed=1)
