@@ -36,7 +36,7 @@ import numpy as np
 from gelsim.atomic import atomic_open, atomic_write_json, atomic_write_text, write_figure
 from gelsim.cli import print_json, run_script
 from gelsim.errors import GelsimError
-from stam.config import CONFIG_DIR
+from stam.config import CONFIG_DIR, load_preset
 from stam.experiment import run_experiment
 from stam.stats import bootstrap_intervals
 
@@ -314,7 +314,7 @@ def main() -> int:
     if args.method == "stam":
         cols = [f"{m}_n{n}" for m in args.models for n in args.frames]
         correct = _stam_points(data, out, points, rows, args)
-        epochs = args.pretrain_epochs or tomllib.loads((CONFIG_DIR / "cpu.toml").read_text())["pretrain"]["epochs"]
+        epochs = args.pretrain_epochs or load_preset("cpu").pretrain.epochs
         extra = {"pretrain_epochs": epochs, "seeds": args.seeds}
     else:
         cols = ["probe"]

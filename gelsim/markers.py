@@ -127,9 +127,9 @@ def _check_rest(rest, profile, seed):
 
 
 def _screened(fields: np.ndarray, ell_cells: float, pad: int) -> np.ndarray:
-    """The screened-Poisson potentials ``(lap - 1/l^2) Phi = field`` of ``fields`` (float64
-    ``(k, h, w)``), zero-padded by ``pad`` cells: float64 ``(k, h, w)``. One FFT pair for the k fields
-    (the same transforms, line for line, as one call each)."""
+    """The screened-Poisson potentials ``(lap - 1/l^2) Phi = field`` of ``fields`` (float32 or float64
+    ``(k, h, w)``; taken into the float64 padded grid), zero-padded by ``pad`` cells: float64 ``(k, h, w)``.
+    One FFT pair for the k fields (the same transforms, line for line, as one call each)."""
     k, h, w = fields.shape
     big = np.zeros((k, h + 2 * pad, w + 2 * pad))
     big[:, pad:pad + h, pad:pad + w] = fields
@@ -214,7 +214,7 @@ def displacement_fields(profile, fidelity, imprint, *, shear_mm=(0.0, 0.0), twis
     amp = 3.0 / (2.0 * gel.thickness_mm)  # surface displacement per unit depth-averaged flux, 1/mm
     if fidelity.marker_model == "elastic":
         pad = int(math.ceil(3 * ell))  # the screened kernel is < 5% of its peak beyond 3 l
-        phi, spread = _screened(np.stack([depth_c, mask_c]).astype(np.float64), ell, pad)
+        phi, spread = _screened(np.stack([depth_c, mask_c]), ell, pad)
         gy, gx = np.gradient(phi * cell_mm * cell_mm, cell_mm)
         ux, uy = amp * gx, amp * gy
         spread = -spread
