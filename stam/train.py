@@ -316,6 +316,20 @@ def model_from_checkpoint(path: str | Path) -> tuple[models.SequenceModel, Train
     return model.eval(), cfg, ck
 
 
+# From scratch, the un-normalised AlexNet can sit at chance for many epochs. On the cpu preset's data
+# (100 fabrics) at Adam 1e-3, seeds 1 and 2 had 1.0-1.1% training accuracy after epoch 3 and never left
+# it, while seed 0 had; at 3e-4 all three seeds had 3.6-5.3%. A run still under twice chance after
+# STALL_EPOCH epochs is told so (and goes on: the user decides).
+STALL_EPOCH = 3
+STALL_FACTOR = 2.0
+
+
+def stalled(train_acc: float, num_classes: int, epoch: int) -> bool:
+    """Whether a pretraining run looks stuck at chance: epoch :data:`STALL_EPOCH` ended with a training
+    accuracy (fraction) under ``STALL_FACTOR / num_classes``."""
+    return epoch == STALL_EPOCH and train_acc < STALL_FACTOR / num_classes
+
+
 def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: int = 224, epochs: int = 10,
              batch_size: int = 64, lr: float = 0.001, optimizer: str = "adam", seed: int = 0, contact_only: bool = True, frame_stride: int = 1,
              onset_threshold: float = DEFAULT_ONSET_THRESHOLD, device: str = "auto", cache_dir: str = "",
@@ -346,7 +360,7 @@ def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: 
     train_ds = FrameDataset(data, "train", image_size, contact_only, onset_threshold, frame_stride)
     val_ds = FrameDataset(data, "val", image_size, contact_only, onset_threshold, frame_stride)
     # Adam by default: from scratch, an un-normalised AlexNet under SGD (lr 0.01, momentum 0.9) stayed
-    # at chance for the first epochs on a 20-fabric gelsim dataset; Adam 1e-3 moves at once.
+    # at chance for the first epochs on a 20-fabric gelsim dataset. Adam too can stall (see `stalled`).
     opt = (torch.optim.Adam(net.parameters(), lr=lr) if optimizer == "adam" else
            torch.optim.SGD(net.parameters(), lr=lr, momentum=0.9, weight_decay=5e-4))
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs)
@@ -363,6 +377,11 @@ def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: 
             left, sec = epochs - epoch, rows[-1]["seconds"]
             eta = f"; about {left * sec / 60:.1f} min for the {left} epochs left" if epoch == 1 and left else ""
             log(f"pretrain epoch {epoch}: train acc {ta:.3f}, val frame acc {va:.3f} ({sec:.1f} s{eta})")
+            if stalled(ta, data.num_classes, epoch):
+                log(f"pretrain: training accuracy {ta:.1%} after {epoch} epochs is still at chance "
+                    f"({1 / data.num_classes:.1%} for {data.num_classes} classes); from scratch this AlexNet can "
+                    f"stay there for many epochs. Stop it and rerun with a lower learning rate (lr {lr:g} now; "
+                    f"try {lr / 3:.2g}: --lr for `stam pretrain`, [pretrain] lr in a preset)")
         if va > best:
             best = va
             plain = fold_batchnorm(net.backbone.cpu().eval())

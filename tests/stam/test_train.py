@@ -8,7 +8,7 @@ import torch
 from stam import cli
 from stam.evaluate import evaluate
 from stam.config import TrainConfig, resolve_train
-from stam.train import load_checkpoint, train
+from stam.train import STALL_EPOCH, load_checkpoint, pretrain, stalled, train
 
 
 def _cfg(synth, out, **kw):
@@ -97,3 +97,20 @@ def test_checkpoints_load_weights_only(synth, tmp_path):
     for name in ("best", "last"):
         ck = torch.load(res[name], weights_only=True)
         assert ck["config"]["model"] == "stam" and "model" in ck
+
+
+def test_stalled_flags_chance_level_after_the_third_epoch():
+    # The cpu preset's measured runs (100 classes): 1.0-1.1% after epoch 3 stalled, 3.6-5.3% took off.
+    assert stalled(0.011, 100, STALL_EPOCH) and not stalled(0.036, 100, STALL_EPOCH)
+    assert not stalled(0.011, 100, STALL_EPOCH - 1) and not stalled(0.011, 100, STALL_EPOCH + 1)
+    assert stalled(0.45, 4, STALL_EPOCH) and not stalled(0.55, 4, STALL_EPOCH)
+
+
+def test_pretraining_that_does_not_move_is_told_to_lower_its_learning_rate(synth, tmp_path):
+    # At lr 1e-12 the weights stay at their initial values, so training accuracy stays near chance (4 classes).
+    lines = []
+    res = pretrain(str(synth), tmp_path, width=0.25, image_size=64, epochs=STALL_EPOCH, batch_size=32,
+                   lr=1e-12, frame_stride=4, progress=False, log=lines.append)
+    assert res["val_acc"] < 0.5
+    warned = [line for line in lines if "still at chance" in line]
+    assert len(warned) == 1 and "lr 1e-12" in warned[0] and "try 3.3e-13" in warned[0], lines
