@@ -170,7 +170,8 @@ ratios; the resolution reached), OUT/tables.png (CIs as error bars) and OUT/resu
 Intervals: percentile bootstrap over the test sequences ({stats.BOOTSTRAP_RESAMPLES:,} resamples, fixed seed).
 Each sequence's correctness is averaged over the seeds first, so its seed-to-seed flips are
 inside the interval; every statistic uses the same resamples, so differences between models,
-n and settings are paired.
+n and settings are paired. A seed can also move a whole cell; that shift's variance, measured
+across the seeds and pooled over the cells, is added to each interval.
 
 Test size: an observed difference of d points is resolved (its CI excludes 0) when the CI's
 half-width, 1.96 sqrt(v / N) on N test sequences, is below d: N >= (1.96 / d)^2 v; finding a

@@ -5,8 +5,10 @@ sequences a comparison needs.
 The evaluation reuses the same test sequences for every model, n, setting and seed. A statistic is
 therefore a mean over the N test sequences of a per-sequence quantity (a sequence's correctness
 averaged over the seeds, or the difference of two such), and its interval comes from resampling
-the sequences, the same resamples for every statistic, so that differences stay paired.
-Fractions in, fractions out (0-1); callers convert to percent.
+the sequences, the same resamples for every statistic, so that differences stay paired. Seeds
+also shift a cell's accuracy as a whole, which resampling the sequences cannot see: that shift's
+variance is measured across the seeds (:func:`seed_variance_ratio`) and added to each interval
+(:func:`widen`). Fractions in, fractions out (0-1); callers convert to percent.
 """
 from __future__ import annotations
 
@@ -136,9 +138,14 @@ def seed_variance_ratio(correct_by_cell: list[np.ndarray]) -> dict:
     accuracy is the mean over sequences of each sequence's variance over seeds, divided by N.
     Returns the observed and that expected variance, summed over cells with S >= 2, and their
     ratio: near 1, the bootstrap over sequences (of correctness averaged over seeds) covers the
-    seed-to-seed variation; well above 1, seeds shift all sequences together and the intervals are
-    too narrow by about the square root of the ratio. None when no cell has two seeds or no
-    sequence ever flips.
+    seed-to-seed variation; well above 1, seeds shift all sequences together, which that bootstrap
+    cannot see. None when no cell has two seeds or no sequence ever flips.
+
+    ``shift_variance``: that shared shift's variance per cell (fraction^2), pooled over the cells,
+    (observed - expected) / cells, and 0 when negative. In the model ``correct[s, i] = a_i + b_s +
+    e_si`` the observed term estimates ``var(b) + var(e) / N`` and the expected one
+    ``(var(b) + var(e)) / N``, so their difference is ``var(b) (1 - 1/N)``: what :func:`widen` adds
+    (divided by S) to an interval from the bootstrap over sequences.
     """
     observed = expected = 0.0
     cells = 0
@@ -150,4 +157,13 @@ def seed_variance_ratio(correct_by_cell: list[np.ndarray]) -> dict:
         expected += float(c.var(0, ddof=1).mean() / c.shape[1])
         cells += 1
     return {"cells": cells, "observed_variance": observed, "expected_variance": expected,
-            "ratio": observed / expected if cells and expected > 0 else None}
+            "ratio": observed / expected if cells and expected > 0 else None,
+            "shift_variance": max(0.0, (observed - expected) / cells) if cells else 0.0}
+
+
+def widen(mean: float, low: float, high: float, variance: float, z: float = Z95) -> tuple[float, float]:
+    """An interval ``(low, high)`` around ``mean`` with an independent error of this ``variance`` added:
+    each side's distance from the mean grows in quadrature by ``z sqrt(variance)``. The seeds' shared
+    shift (:func:`seed_variance_ratio`) is added to the bootstrap's intervals this way."""
+    extra = z * z * max(0.0, variance)
+    return (mean - math.sqrt((mean - low) ** 2 + extra), mean + math.sqrt((high - mean) ** 2 + extra))

@@ -12,9 +12,10 @@ MODELS = ["cnn", "cnn_sa", "stam"]
 SETTINGS = ["clean", "noisy"]
 
 
-def _cells(seed=0, fabrics=20, per_fabric=10, seeds=3):
-    """CNN right on about 30% (clean) or 20% (noisy) of the sequences, each seed flipping some;
-    CNN+SA exactly as CNN; STAM as CNN and also right on 60 sequences CNN gets wrong in every seed."""
+def _cells(seed=0, fabrics=20, per_fabric=10, seeds=3, shift=0.0):
+    """CNN right on about 30% (clean) or 20% (noisy) of the sequences, each seed flipping some and,
+    with ``shift``, moving its whole threshold by N(0, shift); CNN+SA exactly as CNN; STAM as CNN and
+    also right on 60 sequences CNN gets wrong in every seed."""
     rng = np.random.default_rng(seed)
     ids = [f"f{f:03d}-s{k:04d}" for f in range(fabrics) for k in range(per_fabric)]
     n = len(ids)
@@ -24,7 +25,7 @@ def _cells(seed=0, fabrics=20, per_fabric=10, seeds=3):
     for setting, p in (("clean", 0.3), ("noisy", 0.2)):
         for frames in FRAMES:
             for s in range(seeds):
-                cnn = (easy < p + 0.05 * (rng.random(n) - 0.5)).astype(int)
+                cnn = (easy < p + (shift * rng.normal() if shift else 0.0) + 0.05 * (rng.random(n) - 0.5)).astype(int)
                 stam = cnn.copy()
                 stam[extra] = 1
                 for model, correct in (("cnn", cnn), ("cnn_sa", cnn), ("stam", stam)):
@@ -94,3 +95,27 @@ def test_analyse_without_a_baseline_or_both_settings():
     assert a["differences"] == [] and a["ratios"] == {} and a["seed_check"]["ratio"] is None
     assert "no two models were run" in a["resolution"]["statement"]
     assert set(a["tables"]["clean"]["stam"]) == set(FRAMES)
+
+
+def test_intervals_include_the_seeds_shared_shift():
+    from stam import stats
+
+    cells, ids = _cells(shift=0.05)
+    a = analyse(cells, MODELS, FRAMES, SETTINGS, ids)
+    var = a["seed_check"]["shift_variance"]
+    assert a["seed_check"]["ratio"] > 3 and 0.3 * 0.05 ** 2 < var < 3 * 0.05 ** 2
+    # A cell: the bootstrap's interval over sequences, each side widened by the shift over 3 seeds.
+    by_id = {}
+    for c in cells:
+        if (c["setting"], c["frames"], c["model"]) == ("clean", 2, "cnn"):
+            by_id[c["seed"]] = dict(zip(c["test_ids"], c["test_correct"]))
+    seed_avg = np.array([[by_id[s][i] for i in ids] for s in range(3)], float).mean(0)
+    mean, lo, hi = stats.bootstrap_ci(seed_avg)
+    row = a["tables"]["clean"]["cnn"][2]
+    assert row["ci95"] == pytest.approx([100 * v for v in stats.widen(mean, lo, hi, var / 3)])
+    assert row["ci95"][1] - row["ci95"][0] > 100 * (hi - lo) + 1
+    # CNN+SA equals CNN seed for seed, but cells' seeds count as independent: an interval around 0
+    # as wide as two cells' shifts, not resolved.
+    same = {(d["difference"], d["frames"]): d for d in a["differences"]}[("CNN+SA − CNN, clean", 2)]
+    half = 100 * 1.959963984540054 * np.sqrt(2 * var / 3)
+    assert same["mean"] == 0 and same["ci95"] == pytest.approx([-half, half]) and not same["resolved"]
