@@ -98,6 +98,7 @@ class PretrainConfig:
     contact_only: bool = True      # frames from the detected onset on
     frame_stride: int = param(1, lo=1, doc="every k-th frame")
     batchnorm: bool = False        # while pretraining only; folded into the convolutions before saving
+    seed: int = param(0, lo=0, doc="the backbone's own seed ([sweep] seeds are the heads')")
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,7 @@ def test_shipped_presets_load_and_validate():
     assert paper.sweep.frames == (2, 3, 4, 5, 6, 7)
     with pytest.raises(Exception):
         cpu.train.lr = 1.0                                     # frozen
+    assert cpu.pretrain.seed == 0 and cpu.pretrain.lr == 3e-4   # one backbone for every cell; lr: docs/stam.md
 
 
 def test_preset_file_errors(tmp_path):
@@ -50,6 +51,7 @@ def test_preset_file_errors(tmp_path):
         "model.toml": ('[train]\nmodel = "vgg"\n', "model 'vgg' unknown"),
         "sweep.toml": ('[sweep]\nsettings = ["dirty"]\n', "'dirty' unknown"),
         "type.toml": ('[pretrain]\nepochs = "ten"\n', "expected an integer"),
+        "seed.toml": ('[pretrain]\nseed = -1\n', "seed: -1 is out of range"),
     }
     for name, (text, match) in cases.items():
         (tmp_path / name).write_text(text)
@@ -107,12 +109,13 @@ def test_set_device_cpu_on_a_gpu_machine_gets_the_cpu_preset(synth, tmp_path, ca
 
 def test_train_pretrains_saves_config_and_resumes(synth, tmp_path, capsys, monkeypatch):
     preset = tmp_path / "tiny.toml"
-    preset.write_text(TINY_TRAIN_PRESET)
+    preset.write_text(TINY_TRAIN_PRESET.replace("[train]", "seed = 1\n[train]"))   # the backbone's seed
     out = tmp_path / "run"
     base = ["train", "--data", str(synth), "--out", str(out), "--frames", "3", "--quiet", "--json"]
     assert cli.main(base + ["--preset", str(preset)]) == 0
     first = json.loads(capsys.readouterr().out)
     assert (out / "pretrain" / "backbone.pt").is_file() and first["pretrain_result"]["reused"] is False
+    assert stam.train.load_checkpoint(out / "pretrain" / "backbone.pt")["settings"]["seed"] == 1
     saved = json.loads((out / "config.json").read_text())
     assert saved["preset"] == str(preset) and saved["pretrained"] == str(out / "pretrain" / "backbone.pt")
     assert saved["epochs"] == 2 and saved["frames"] == 3 and saved["width"] == 0.25 and saved["freeze_backbone"]
