@@ -165,7 +165,9 @@ def experiment_help() -> str:
 Writes OUT/table1.md and OUT/table2.md (test accuracy, mean over seeds [95% CI], beside the
 paper's figure), OUT/differences.md (the paper's comparisons STAM - CNN, CNN+SA - CNN and
 noisy - clean as paired differences with 95% CIs, bold where the CI excludes 0; noisy/clean
-ratios; the resolution reached), OUT/tables.png (CIs as error bars) and OUT/results.json.
+ratios; what the frames before contact cost once the contact frames are matched: noisy n
+against clean n - onset, the same contact frames; the resolution reached), OUT/tables.png
+(CIs as error bars) and OUT/results.json.
 
 Intervals: percentile bootstrap over the test sequences ({stats.BOOTSTRAP_RESAMPLES:,} resamples, fixed seed).
 Each sequence's correctness is averaged over the seeds first, so its seed-to-seed flips are

@@ -11,7 +11,8 @@ Output directory::
     OUT/onsets.json                 agreement of detected and true contact onsets
     OUT/table1.md, OUT/table2.md    ours (mean [95% CI]) beside the paper's figures, the paper's layout
     OUT/differences.md              the paper's comparisons as paired differences with 95% CIs, the
-                                    noisy/clean ratios, and the resolution at this test size
+                                    noisy/clean ratios, what the frames before contact cost with the
+                                    contact frames matched, and the resolution at this test size
     OUT/tables.png                  accuracy against n with 95% CIs, both settings
     OUT/results.json                all of it (cells without their per-sequence lists)
 
@@ -268,7 +269,8 @@ def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, over
             log(f"[{done}/{len(todo)}] {cell['setting']} n={cell['frames']} {cell['model']} seed {cell['seed']}: "
                 f"test {cell['test_acc']:.3f} (val {cell['val_acc']:.3f}, {cell['seconds']:.0f} s)")
     cells = [finished[key] for key in todo]
-    analysis = analyse(cells, models, frames, settings, test_ids)
+    detected = {s.id: data.onset(s, size, "detected", cfg.train.onset_threshold) for s in test}
+    analysis = analyse(cells, models, frames, settings, test_ids, detected)
     paths = write_tables(out, analysis, models, frames, settings, seeds, onsets, preset)
     result = {"cells": [{k: v for k, v in c.items() if k not in PER_SEQUENCE_KEYS} for c in cells],
               **analysis, "test_size_warning": warning, "onsets": onsets, "pretrain": pt,
@@ -317,9 +319,12 @@ def _interval(mean: float, lo: float, hi: float, scale: float = 100.0) -> dict:
     return {"mean": float(scale * mean), "ci95": [float(scale * lo), float(scale * hi)]}
 
 
-def analyse(cells: list[dict], models, frames, settings, test_ids: list[str]) -> dict:
+def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
+            onsets: dict[str, int | None] | None = None) -> dict:
     """Accuracies with 95% CIs, the paper's paired differences with 95% CIs, noisy/clean ratios, the
-    resolution at this test size and the seed check. Percent and percentage points.
+    resolution at this test size and the seed check; with ``onsets`` (test sequence id -> detected
+    contact onset, the frame the clean windows start at, or None), what the frames before contact
+    cost once the contact frames are matched (:func:`_precontact`). Percent and percentage points.
 
     ``cells``: results with per-sequence correctness; ``test_ids``: the test split, sorted."""
     grouped: dict = {}
@@ -392,7 +397,9 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str]) ->
                     ratios[m] = {"ratio": r[0], "ci95": [r[1], r[2]], "resolved": r[1] > 1 or r[2] < 1,
                                  "paper": None if None in paper.values() else paper["noisy"] / paper["clean"]}
 
-    return {"tables": tables, "differences": differences, "ratios": ratios,
+    precontact = (_precontact(seed_mean, correct, models, frames, test_ids, onsets, seed_check["shift_variance"])
+                  if onsets and "clean" in settings and "noisy" in settings else None)
+    return {"tables": tables, "differences": differences, "ratios": ratios, "precontact": precontact,
             "resolution": resolution(differences, tables, len(test_ids), max((len(c) for c in grouped.values()), default=0)),
             "seed_check": seed_check,
             "bootstrap": {"method": "percentile bootstrap over the test sequences; each sequence's correctness "
@@ -401,6 +408,55 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str]) ->
                                     "(seed_check's shift_variance over the seeds, cells' seeds independent)",
                           "resamples": stats.BOOTSTRAP_RESAMPLES, "seed": stats.BOOTSTRAP_SEED,
                           "level": stats.CI_LEVEL, "test_sequences": len(test_ids)}}
+
+
+def _precontact(seed_mean: dict, correct: dict, models, frames, test_ids: list[str], onsets: dict,
+                shift_variance: float) -> dict | None:
+    """The cost of the frames before contact, with the contact frames held fixed.
+
+    A noisy window of n frames starts at frame 0; with the detected onset o (1 <= o < n) it holds the
+    o frames before contact and then frames o..n-1, which are exactly the clean window of k = n - o
+    frames. So noisy(n) - clean(k) on such a sequence is what adding the frames before contact does,
+    apart from the contact frames it brings fewer of (the rest of noisy - clean). Per model: the mean
+    of that per-sequence difference (correctness averaged over the seeds) over every (sequence, n)
+    with k among ``frames``, as a ratio of means over the test sequences (bootstrap, then widened by
+    the seeds' shift over the cells involved, as the other intervals). Also attention - CNN of it: the
+    paper's claim is that STAM gains here. None when no sequence qualifies."""
+    pairs = [(i, n, n - onsets[t]) for i, t in enumerate(test_ids) for n in frames
+             if onsets.get(t) is not None and 1 <= onsets[t] < n and n - onsets[t] in frames]
+    if not pairs:
+        return None
+    count = np.zeros(len(test_ids))
+    np.add.at(count, [i for i, _, _ in pairs], 1.0)
+    # seed shift: each side is a mixture of cells weighted by their share of the pairs
+    share = {("noisy", n): 0.0 for n in frames} | {("clean", k): 0.0 for k in frames}
+    for _, n, k in pairs:
+        share[("noisy", n)] += 1 / len(pairs)
+        share[("clean", k)] += 1 / len(pairs)
+    sums, out, diffs = {}, {}, {}
+    for m in models:
+        if not all(("noisy", n, m) in seed_mean and ("clean", k, m) in seed_mean for _, n, k in pairs):
+            continue
+        v = np.zeros(len(test_ids))
+        for i, n, k in pairs:
+            v[i] += seed_mean[("noisy", n, m)][i] - seed_mean[("clean", k, m)][i]
+        sums[m] = v
+        spread = sum(w * w / len(correct[(s, f, m)]) for (s, f), w in share.items() if w)
+        out[m] = _precontact_ci(v, count, spread * shift_variance)
+    for m in ("stam", "cnn_sa"):
+        if m in sums and "cnn" in sums:
+            spread = sum(w * w * (1 / len(correct[(s, f, m)]) + 1 / len(correct[(s, f, "cnn")]))
+                         for (s, f), w in share.items() if w)
+            diffs[m] = _precontact_ci(sums[m] - sums["cnn"], count, spread * shift_variance)
+    onset_values = sorted({n - k for _, n, k in pairs})
+    return {"windows": len(pairs), "sequences": int((count > 0).sum()), "onsets": onset_values,
+            "models": out, "minus_cnn": diffs}
+
+
+def _precontact_ci(values: np.ndarray, count: np.ndarray, variance: float) -> dict:
+    mean, lo, hi = stats.ratio_ci(values, count)
+    d = _interval(mean, *stats.widen(mean, lo, hi, variance))
+    return {**d, "resolved": d["ci95"][0] > 0 or d["ci95"][1] < 0}
 
 
 def resolution(differences: list[dict], tables: dict, test_sequences: int, seeds: int) -> dict:
@@ -500,6 +556,20 @@ def markdown_differences(analysis: dict, frames) -> str:
                          + (f" ({r['paper']:.2f})" if r["paper"] is not None else ""))
         lines += ["", "Noisy/clean accuracy ratio (accuracies averaged over n; bold: the CI excludes 1): "
                   + ", ".join(parts) + "."]
+    pc = analysis.get("precontact")
+    if pc:
+        def fmt(d):
+            text = _ci_text(d, signed=True)
+            return f"**{text}**" if d["resolved"] else text
+        parts = [f"{SHORT_LABELS.get(m, m)} {fmt(d)}" for m, d in pc["models"].items()]
+        gains = [f"{SHORT_LABELS.get(m, m)} − CNN {fmt(d)}" for m, d in pc["minus_cnn"].items()]
+        lines += ["", "Frames before contact, contact frames matched: a noisy window of n frames holds the o frames "
+                  "before the detected onset and then the clean window of k = n − o frames, the same frames. "
+                  f"Noisy(n) − clean(k) on the same sequences, points, over {pc['windows']:,} windows of "
+                  f"{pc['sequences']:,} sequences (o = {', '.join(map(str, pc['onsets']))}; k among the table's n): "
+                  + ", ".join(parts) + (". Attention's share of it: " + ", ".join(gains) if gains else "") + ". "
+                  "The rest of noisy − clean is the contact frames such a window holds fewer of, which no model "
+                  "can recover."]
     lines += ["", analysis["resolution"]["statement"]]
     sc = analysis["seed_check"]
     if sc["ratio"] is not None:

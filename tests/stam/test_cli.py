@@ -31,6 +31,11 @@ def test_experiment_tables_and_resume(tiny_experiment):
         out / "differences.md").read_text()
     assert res["test_size_warning"].startswith("stam experiment: warning: the test split has 8 sequences")
     test_ids = sorted(s.id for s in TactileDataset(tiny_experiment["data"]).split("test"))
+    # n in {2, 3}: a noisy window of 3 frames after a detected onset at 1 holds the clean window of 2
+    reader = TactileDataset(tiny_experiment["data"])
+    onset_1 = sum(reader.onset(s, 96) == 1 for s in reader.split("test"))
+    assert onset_1 > 0 and res["precontact"]["windows"] == res["precontact"]["sequences"] == onset_1
+    assert "Frames before contact, contact frames matched" in (out / "differences.md").read_text()
     for c in res["cells"]:
         assert 0.0 <= c["test_acc"] <= 1.0 and c["test_count"] == 8
         assert "test_correct" not in c  # results.json leaves the per-sequence lists in the cells' files

@@ -119,3 +119,42 @@ def test_intervals_include_the_seeds_shared_shift():
     same = {(d["difference"], d["frames"]): d for d in a["differences"]}[("CNN+SA − CNN, clean", 2)]
     half = 100 * 1.959963984540054 * np.sqrt(2 * var / 3)
     assert same["mean"] == 0 and same["ci95"] == pytest.approx([-half, half]) and not same["resolved"]
+
+
+def test_precontact_cost_with_the_contact_frames_matched():
+    # 200 sequences, n = 2..4. Onset 1 on the first 150 (noisy n holds clean k = n - 1 after one flat
+    # frame), onset 3 on the next 30 (noisy n = 4 holds k = 1 contact frame: no such clean cell, so no
+    # pair), no onset detected on the last 20. The CNN's noisy window is right exactly where its clean
+    # window of k frames is (the flat frame costs nothing); STAM's noisy window is wrong on the first 30
+    # sequences, whatever its clean window says. Both seeds agree (no seed shift).
+    frames, n_seq = [2, 3, 4], 200
+    ids = [f"f{i % 20:03d}-s{i:04d}" for i in range(n_seq)]
+    onsets = {t: (1 if i < 150 else 3 if i < 180 else None) for i, t in enumerate(ids)}
+    rng = np.random.default_rng(3)
+    clean = {n: (rng.random(n_seq) < 0.2 + 0.1 * n).astype(int) for n in frames}
+    cells = []
+    for model in ("cnn", "stam"):
+        for n in frames:
+            noisy = rng.integers(0, 2, n_seq)                 # what sequences without a matched window get
+            for i in range(150):
+                noisy[i] = clean[n - 1][i] if n - 1 in clean else noisy[i]
+            if model == "stam":
+                noisy[:30] = 0
+            for seed in range(2):
+                for setting, correct in (("clean", clean[n]), ("noisy", noisy)):
+                    cells.append({"setting": setting, "frames": n, "model": model, "seed": seed,
+                                  "test_ids": ids, "test_correct": correct.tolist(),
+                                  "test_predictions": [0] * n_seq, "test_acc": float(correct.mean())})
+    a = analyse(cells, ["cnn", "stam"], frames, SETTINGS, ids, onsets)
+    pc = a["precontact"]
+    # pairs: onset 1 and n = 3, 4 (k = 2, 3) on 150 sequences; onset 3 leaves k = 1 (not run)
+    assert pc["windows"] == 300 and pc["sequences"] == 150 and pc["onsets"] == [1]
+    assert pc["models"]["cnn"]["mean"] == 0 and pc["models"]["cnn"]["ci95"] == [0, 0]
+    clean_right = sum(clean[k][:30].sum() for k in (2, 3))
+    assert pc["models"]["stam"]["mean"] == pytest.approx(-100 * clean_right / 300)
+    assert pc["minus_cnn"]["stam"]["mean"] == pytest.approx(pc["models"]["stam"]["mean"])
+    assert pc["minus_cnn"]["stam"]["resolved"] and not pc["models"]["cnn"]["resolved"]
+    text = markdown_differences(a, frames)
+    assert "Frames before contact, contact frames matched" in text and "over 300 windows of 150 sequences" in text
+    # Without onsets (or without both settings) there is no such analysis.
+    assert analyse(cells, ["cnn", "stam"], frames, SETTINGS, ids)["precontact"] is None
