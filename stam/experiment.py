@@ -567,9 +567,8 @@ def markdown_differences(analysis: dict, frames) -> str:
                   "before the detected onset and then the clean window of k = n − o frames, the same frames. "
                   f"Noisy(n) − clean(k) on the same sequences, points, over {pc['windows']:,} windows of "
                   f"{pc['sequences']:,} sequences (o = {', '.join(map(str, pc['onsets']))}; k among the table's n): "
-                  + ", ".join(parts) + (". Attention's share of it: " + ", ".join(gains) if gains else "") + ". "
-                  "The rest of noisy − clean is the contact frames such a window holds fewer of, which no model "
-                  "can recover."]
+                  + ", ".join(parts) + (". Attention against the baseline on it: " + ", ".join(gains) if gains else "")
+                  + ". The rest of noisy − clean is the contact frames such a window lacks."]
     lines += ["", analysis["resolution"]["statement"]]
     sc = analysis["seed_check"]
     if sc["ratio"] is not None:
