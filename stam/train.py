@@ -377,11 +377,13 @@ def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: 
             left, sec = epochs - epoch, rows[-1]["seconds"]
             eta = f"; about {left * sec / 60:.1f} min for the {left} epochs left" if epoch == 1 and left else ""
             log(f"pretrain epoch {epoch}: train acc {ta:.3f}, val frame acc {va:.3f} ({sec:.1f} s{eta})")
-            if stalled(ta, data.num_classes, epoch):
-                log(f"pretrain: training accuracy {ta:.1%} after {epoch} epochs is still at chance "
-                    f"({1 / data.num_classes:.1%} for {data.num_classes} classes); from scratch this AlexNet can "
-                    f"stay there for many epochs. Stop it and rerun with a lower learning rate (lr {lr:g} now; "
-                    f"try {lr / 3:.2g}: --lr for `stam pretrain`, [pretrain] lr in a preset)")
+        if stalled(ta, data.num_classes, epoch):
+            # said even without a log (--quiet, --json): on stderr then, so that JSON output stays clean
+            (log or (lambda m: print(m, file=sys.stderr)))(
+                f"pretrain: training accuracy {ta:.1%} after {epoch} epochs is still at chance "
+                f"({1 / data.num_classes:.1%} for {data.num_classes} classes); from scratch this AlexNet can "
+                f"stay there for many epochs. Stop it and rerun with a lower learning rate (lr {lr:g} now; "
+                f"try {lr / 3:.2g}: --lr for `stam pretrain`, [pretrain] lr in a preset)")
         if va > best:
             best = va
             plain = fold_batchnorm(net.backbone.cpu().eval())

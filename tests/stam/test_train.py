@@ -114,3 +114,11 @@ def test_pretraining_that_does_not_move_is_told_to_lower_its_learning_rate(synth
     assert res["val_acc"] < 0.5
     warned = [line for line in lines if "still at chance" in line]
     assert len(warned) == 1 and "lr 1e-12" in warned[0] and "try 3.3e-13" in warned[0], lines
+
+
+def test_a_stalled_pretraining_is_told_on_stderr_without_a_log(synth, tmp_path, capsys):
+    assert cli.main(["pretrain", "--data", str(synth), "--out", str(tmp_path), "--width", "0.25",
+                     "--image-size", "64", "--epochs", str(STALL_EPOCH), "--batch-size", "32", "--lr", "1e-12",
+                     "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["val_acc"] < 0.5 and "still at chance" in err
