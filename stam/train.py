@@ -317,9 +317,9 @@ def model_from_checkpoint(path: str | Path) -> tuple[models.SequenceModel, Train
 
 
 # From scratch, the un-normalised AlexNet can sit at chance for many epochs. On the cpu preset's data
-# (100 fabrics) at Adam 1e-3, seeds 1 and 2 had 1.0-1.1% training accuracy after epoch 3 and never left
-# it, while seed 0 had; at 3e-4 all three seeds had 3.6-5.3%. A run still under twice chance after
-# STALL_EPOCH epochs is told so (and goes on: the user decides).
+# (100 fabrics) at Adam 1e-3, seeds 1 and 2 had 1.0-1.1% training accuracy after epoch 3 and did not leave
+# chance in 8 and 5 epochs, while seed 0 had 5.3% and took off; at 3e-4 all three seeds had 3.6-5.3%. A
+# run still under twice chance after STALL_EPOCH epochs is told so (and goes on: the user decides).
 STALL_EPOCH = 3
 STALL_FACTOR = 2.0
 
