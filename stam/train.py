@@ -319,7 +319,8 @@ def model_from_checkpoint(path: str | Path) -> tuple[models.SequenceModel, Train
 # From scratch, the un-normalised AlexNet can sit at chance for many epochs. On the cpu preset's data
 # (100 fabrics) at Adam 1e-3, seeds 1 and 2 had 1.0-1.1% training accuracy after epoch 3 and did not leave
 # chance in 8 and 5 epochs, while seed 0 had 5.3% and took off; at 3e-4 all three seeds had 3.6-5.3%. A
-# run still under twice chance after STALL_EPOCH epochs is told so (and goes on: the user decides).
+# run still under twice chance after STALL_EPOCH epochs is told so (and goes on: the user decides; at 64 px
+# and 3e-4 the cpu preset's backbone was told so and then left chance at epochs 4-5).
 STALL_EPOCH = 3
 STALL_FACTOR = 2.0
 
@@ -382,8 +383,9 @@ def pretrain(data_dir: str, out: str | Path, *, width: float = 1.0, image_size: 
             (log or (lambda m: print(m, file=sys.stderr)))(
                 f"pretrain: training accuracy {ta:.1%} after {epoch} epochs is still at chance "
                 f"({1 / data.num_classes:.1%} for {data.num_classes} classes); from scratch this AlexNet can "
-                f"stay there for many epochs. Stop it and rerun with a lower learning rate (lr {lr:g} now; "
-                f"try {lr / 3:.2g}: --lr for `stam pretrain`, [pretrain] lr in a preset)")
+                f"stay there for many epochs. If it has not left chance in a few more, stop it and rerun with a "
+                f"lower learning rate (lr {lr:g} now; try {lr / 3:.2g}: --lr for `stam pretrain`, [pretrain] lr "
+                "in a preset)")
         if va > best:
             best = va
             plain = fold_batchnorm(net.backbone.cpu().eval())
