@@ -344,7 +344,7 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
     def column(name, weighted):
         names.append(name)
         columns.append(sum(w * seed_mean[key] for w, key in weighted))
-        spreads.append(sum(w * w / len(correct[key]) for w, key in weighted))
+        spreads.append(_shift_spread(weighted, correct))
 
     cell_keys = [(s, n, m) for s in settings for m in models for n in frames if (s, n, m) in seed_mean]
     for key in cell_keys:
@@ -389,8 +389,8 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
                 r = stats.ratio_ci(avg["noisy"], avg["clean"])
                 if r is not None:
                     # the seeds' shift by the delta method: var(N/C) = r^2 (var N / N^2 + var C / C^2)
-                    shift = {s: seed_check["shift_variance"] * sum(1 / len(correct[(s, n, m)]) for n in frames)
-                             / len(frames) ** 2 for s in ("clean", "noisy")}
+                    shift = {s: seed_check["shift_variance"] * _shift_spread(
+                        [(1 / len(frames), (s, n, m)) for n in frames], correct) for s in ("clean", "noisy")}
                     r = (r[0], *stats.widen(r[0], r[1], r[2], r[0] ** 2 * sum(
                         shift[s] / avg[s].mean() ** 2 for s in ("clean", "noisy"))))
                     paper = {s: _paper_mean([_paper(s, m, n) for n in frames]) for s in ("clean", "noisy")}
@@ -408,6 +408,13 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
                                     "(seed_check's shift_variance over the seeds, cells' seeds independent)",
                           "resamples": stats.BOOTSTRAP_RESAMPLES, "seed": stats.BOOTSTRAP_SEED,
                           "level": stats.CI_LEVEL, "test_sequences": len(test_ids)}}
+
+
+def _shift_spread(weighted: list[tuple[float, tuple]], correct: dict) -> float:
+    """sum of weight^2 / seeds over ``weighted`` (weight, cell key) pairs: times the seeds' shift variance,
+    what that shift adds to the variance of sum(weight x the cell's seed-averaged accuracy), the cells'
+    seeds taken as independent."""
+    return sum(w * w / len(correct[key]) for w, key in weighted)
 
 
 def _precontact(seed_mean: dict, correct: dict, models, frames, test_ids: list[str], onsets: dict,
@@ -441,13 +448,12 @@ def _precontact(seed_mean: dict, correct: dict, models, frames, test_ids: list[s
         for i, n, k in pairs:
             v[i] += seed_mean[("noisy", n, m)][i] - seed_mean[("clean", k, m)][i]
         sums[m] = v
-        spread = sum(w * w / len(correct[(s, f, m)]) for (s, f), w in share.items() if w)
-        out[m] = _precontact_ci(v, count, spread * shift_variance)
+        cells = [(w, (s, f, m)) for (s, f), w in share.items() if w]
+        out[m] = _precontact_ci(v, count, _shift_spread(cells, correct) * shift_variance)
     for m in ("stam", "cnn_sa"):
         if m in sums and "cnn" in sums:
-            spread = sum(w * w * (1 / len(correct[(s, f, m)]) + 1 / len(correct[(s, f, "cnn")]))
-                         for (s, f), w in share.items() if w)
-            diffs[m] = _precontact_ci(sums[m] - sums["cnn"], count, spread * shift_variance)
+            cells = [(w, (s, f, model)) for (s, f), w in share.items() if w for model in (m, "cnn")]
+            diffs[m] = _precontact_ci(sums[m] - sums["cnn"], count, _shift_spread(cells, correct) * shift_variance)
     onset_values = sorted({n - k for _, n, k in pairs})
     return {"windows": len(pairs), "sequences": int((count > 0).sum()), "onsets": onset_values,
             "models": out, "minus_cnn": diffs}
