@@ -246,8 +246,11 @@ class HeightPatch:
     mm_per_px: float
 
     def sample(self, shape: tuple[int, int], sensor_mm_per_px: float, x_mm: float, y_mm: float,
-               yaw_deg: float, tilt_deg: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
-        """Protrusion map ``float32 shape`` (H, W) seen by a sensor at (x, y, yaw), mm >= 0.
+               yaw_deg: float, tilt_deg: tuple[float, float] = (0.0, 0.0),
+               box: tuple[int, int, int, int] | None = None) -> np.ndarray:
+        """Protrusion map ``float32 shape`` (H, W) seen by a sensor at (x, y, yaw), mm >= 0; with ``box`` =
+        (r0, r1, c0, c1), only its rows r0:r1 and columns c0:c1 (the same values up to float rounding:
+        on the box's last row and column, and a turned frame's map offset).
 
         Sensor pixel (u, v) sits at sensor-frame point ((u - (W-1)/2) s, (v - (H-1)/2) s);
         rotating by yaw and translating by (x, y) gives the world point, which maps to
@@ -255,6 +258,7 @@ class HeightPatch:
         exactly that dst->src affine map.
         """
         H, W = shape
+        r0, r1, c0, c1 = (0, H, 0, W) if box is None else box
         s, p = sensor_mm_per_px, self.mm_per_px
         c, sn = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
         cu, cv = (W - 1) / 2.0, (H - 1) / 2.0
@@ -263,6 +267,7 @@ class HeightPatch:
         a21, a22 = sn * s / p, c * s / p
         b1 = (x_mm - x0) / p - a11 * cu - a12 * cv
         b2 = (y_mm - y0) / p - a21 * cu - a22 * cv
+        h, w = r1 - r0, c1 - c0
         out = None
         # The map's departure from a translation, at worst over the frame, px.
         off = (abs(a11 - 1.0) + abs(a21)) * W + (abs(a12) + abs(a22 - 1.0)) * H
@@ -272,27 +277,30 @@ class HeightPatch:
             # took 1.3 ms per 960x720 frame, the filter 0.25).
             tx = a11 * cu + a12 * cv + b1 - cu
             ty = a21 * cu + a22 * cv + b2 - cv
-            out = _shifted(self.heights_mm, tx, ty, H, W)
+            out = _shifted(self.heights_mm, tx, ty, h, w, r0, c0)
         if out is None:
-            M = np.array([[a11, a12, b1], [a21, a22, b2]], dtype=np.float64)
-            out = cv2.warpAffine(self.heights_mm, M, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+            # (the box's pixel (0, 0) is the frame's (c0, r0): the map's offset moves by A (c0, r0))
+            M = np.array([[a11, a12, b1 + a11 * c0 + a12 * r0], [a21, a22, b2 + a21 * c0 + a22 * r0]], dtype=np.float64)
+            out = cv2.warpAffine(self.heights_mm, M, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                  borderMode=cv2.BORDER_REPLICATE)
         if tilt_deg[0] or tilt_deg[1]:
             # A tilted sensor meets one side of the object first: it appears raised on the side the
             # gel leans towards (small angles: a plane of slope tan(tilt)).
-            xs = (np.arange(W, dtype=np.float32) - cu) * s
-            ys = (np.arange(H, dtype=np.float32) - cv) * s
+            xs = (np.arange(c0, c1, dtype=np.float32) - cu) * s
+            ys = (np.arange(r0, r1, dtype=np.float32) - cv) * s
             _add_plane(out, np.float32(math.tan(math.radians(tilt_deg[1]))), xs,
                        np.float32(math.tan(math.radians(tilt_deg[0]))), ys)
         return out
 
 
-def _shifted(src: np.ndarray, tx: float, ty: float, h: int, w: int) -> np.ndarray | None:
-    """``src`` (float32 (rows, cols)) read bilinearly at pixel ``(j + tx, i + ty)`` for output pixel
+def _shifted(src: np.ndarray, tx: float, ty: float, h: int, w: int, r0: int = 0, c0: int = 0) -> np.ndarray | None:
+    """``src`` (float32 (rows, cols)) read bilinearly at pixel ``(j + c0 + tx, i + r0 + ty)`` for output pixel
     ``(i, j)``: float32 ``(h, w)``, C-contiguous; None when that reaches past ``src``'s last pixels
-    (the caller's warp replicates the edge there)."""
+    (the caller's warp replicates the edge there). (The whole offsets r0, c0 apart from the shift: a
+    box of a frame reads the frame's pixels with the frame's weights.)"""
     x0, y0 = math.floor(tx), math.floor(ty)
     fx, fy = np.float32(tx - x0), np.float32(ty - y0)
+    x0, y0 = x0 + c0, y0 + r0
     if x0 < 0 or y0 < 0 or x0 + w + 1 > src.shape[1] or y0 + h + 1 > src.shape[0]:
         return None
     one = np.float32(1.0)

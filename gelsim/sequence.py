@@ -29,6 +29,7 @@ and for measuring the savings).
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections import defaultdict
@@ -42,6 +43,7 @@ from .contact import ContactFrames, Surface, simulate
 from .errors import GelsimError
 from .fidelity import Fidelity
 from .gel import press
+from .gel.twoscale import crown_envelope, texture_scale_mm
 from .markers import displace, marker_grid, rest_markers
 from .motion import Motion
 from .optics import Renderer
@@ -110,6 +112,16 @@ def contact_location(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             np.array([x - 0.5, y - 0.5, x + w - 0.5, y + h - 0.5]))
 
 
+def crown_envelope_patch(patch: HeightPatch | None, obj: TouchedObject, profile: SensorProfile,
+                         fidelity: Fidelity) -> HeightPatch | None:
+    """The crown envelope (:func:`gelsim.gel.twoscale.crown_envelope`) of ``patch``'s heights, on its grid;
+    None when no frame needs one (no patch, an object without texture, a model without the envelope)."""
+    tex = texture_scale_mm(obj.texture_mm, profile.gel)
+    if patch is None or tex is None or fidelity.imprint_model not in ("twoscale", "elastic"):
+        return None
+    return HeightPatch(crown_envelope(patch.heights_mm, tex, patch.mm_per_px), patch.origin_mm, patch.mm_per_px)
+
+
 def render_sequence(obj: TouchedObject, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *,
                     seed: int, renderer: Renderer | None = None, sensor_seed: int = 0,
                     out: SequenceOutput | None = None, shortcuts: bool = True,
@@ -158,6 +170,9 @@ def render_sequence(obj: TouchedObject, motion: Motion, profile: SensorProfile, 
     if patch is None and want_imprint and (touches or not shortcuts):
         patch = travel_patch(obj, motion, profile, profile.image.mm_per_px, seed=seed,
                              poses=(contact.position_mm, contact.yaw_deg))
+    # The crown envelope of the object's texture is a property of the object, not of the pose: taken once
+    # on the patch and seen through each frame's pose like the heights (press(envelope_mm=)).
+    envelope = crown_envelope_patch(patch, obj, profile, fidelity)
     t = timer.add("fabric", t)
 
     markers_on = profile.markers.enabled and want_markers
@@ -178,11 +193,13 @@ def render_sequence(obj: TouchedObject, motion: Motion, profile: SensorProfile, 
         imprint = None
         touching = bool(contact.in_contact[i]) and force > 0.0
         if want_imprint and (touching or not shortcuts):
-            prot = patch.sample(profile.shape, profile.image.mm_per_px, contact.position_mm[i, 0],
-                                contact.position_mm[i, 1], contact.yaw_deg[i], tuple(contact.tilt_deg[i]))
+            pose = (profile.shape, profile.image.mm_per_px, contact.position_mm[i, 0], contact.position_mm[i, 1],
+                    contact.yaw_deg[i], tuple(contact.tilt_deg[i]))
+            prot = patch.sample(*pose)
+            env = None if envelope is None else functools.partial(envelope.sample, *pose)
             t = timer.add("fabric", t)
             imprint = press(prot, profile, fidelity, force_n=force if touching else 0.0, support=support,
-                            texture_mm=texture_mm, window=window, warm=prev)
+                            texture_mm=texture_mm, window=window, warm=prev, envelope_mm=env)
             prev = imprint if touching else None
             indentation[i] = imprint.indentation_mm
             area[i] = imprint.contact_area_mm2

@@ -29,7 +29,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import cv2
 import numpy as np
@@ -147,7 +147,8 @@ def _no_contact(profile) -> Imprint:
 
 def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None = None,
           depth_mm: float | None = None, support: FabricSupport | None = None, texture_mm: float | None = None,
-          window: str = "touched", warm: Imprint | None = None) -> Imprint:
+          window: str = "touched", warm: Imprint | None = None,
+          envelope_mm: np.ndarray | Callable[..., np.ndarray] | None = None) -> Imprint:
     """Press an object into the gel.
 
     protrusion_mm: (H, W) protrusion map in mm at the profile's image resolution, or already at
@@ -161,6 +162,12 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
         frame (for checking the former).
     warm: the previous frame's Imprint of the same object, to warm-start the two-scale model's
         macro solve (same result within its tolerance, a few times fewer iterations).
+    envelope_mm: the object's crown envelope seen as ``protrusion_mm`` sees the object (same shape and
+        pose; two-scale model, with ``texture_mm``), or a function ``envelope_mm(box=None)`` that gives
+        it, or only its rows r0:r1 and columns c0:c1 for ``box`` = (r0, r1, c0, c1) (only the touched
+        region is read; e.g. :meth:`gelsim.scene.HeightPatch.sample` with the frame's pose). A sequence
+        takes it once on the object (:func:`gelsim.sequence.render_sequence`). None: taken here, over the
+        touched region of the object's own heights (before the dome's sag).
     Returns an :class:`Imprint` at the profile's image resolution (float32 depth).
     """
     from ..fidelity import get_fidelity
@@ -181,6 +188,9 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
     else:
         raise GelsimError(f"protrusion map is {prot.shape}; give {profile.shape} (the profile's image) "
                           f"or {ws} (its imprint grid)")
+    env = None
+    if envelope_mm is not None and texture_mm is not None and fidelity.imprint_model in ("twoscale", "elastic"):
+        env = _envelope_reader(envelope_mm, prot.shape, ws)
     sag = gel_sag_mm(profile, ws)
     if sag is not None:
         work = work - sag
@@ -190,7 +200,8 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
     if model == "twoscale" or model == "elastic":
         ts = press_twoscale(work, dx, gel, force_n=force_n, depth_mm=depth_mm, support=support,
                             texture_mm=texture_mm, window=window, macro_cells=fidelity.macro_cells,
-                            warm=warm.state if (warm is not None and isinstance(warm.state, MacroState)) else None)
+                            warm=warm.state if (warm is not None and isinstance(warm.state, MacroState)) else None,
+                            sag=sag, envelope=env)
         depth_w, mask_w, delta, force, bottomed, state = ts
         if model == "elastic":
             depth_w, mask_w, delta, force, bottomed, state = press_elastic(
@@ -211,6 +222,18 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
     depth = depth.astype(np.float32, copy=False)  # finite and >= 0 by construction
     area = float(np.count_nonzero(mask_w)) * dx * dx
     return Imprint(depth, mask, float(delta), float(force), area, bool(bottomed), state)
+
+
+def _envelope_reader(envelope_mm, prot_shape, ws) -> Callable[[tuple[int, int, int, int]], np.ndarray]:
+    """``press``'s ``envelope_mm`` as a function of a box of the imprint grid ``ws`` (float32 mm): read
+    as asked when the protrusion map is on that grid, else whole and resampled as that map is."""
+    if callable(envelope_mm) and prot_shape == ws:
+        return lambda box: envelope_mm(box=box)
+    env = np.asarray(envelope_mm() if callable(envelope_mm) else envelope_mm)
+    if env.shape != prot_shape:
+        raise GelsimError(f"envelope_mm is {env.shape}, the protrusion map {prot_shape}; give both on the same grid")
+    env = resize(np.ascontiguousarray(env, dtype=np.float32), ws, cv2.INTER_AREA)
+    return lambda box: env[box[0]:box[1], box[2]:box[3]]
 
 
 # The pyramid model takes one linear stiffness for a fabric: its secant at 10 kPa (a 3 N press

@@ -30,6 +30,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -128,6 +129,28 @@ def _closing(img: np.ndarray, k: int) -> np.ndarray:
         d = _running_extreme(d, k, cv2.min, 0)
         return _running_extreme(d, k, cv2.min, 1)
     return cv2.morphologyEx(img, cv2.MORPH_CLOSE, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
+
+
+def texture_scale_mm(texture_mm: float | None, gel) -> float | None:
+    """The texture's scale the model works with, mm: ``texture_mm`` capped below the gel's thickness
+    (coarser relief is the macro solve's: the layer's finite thickness matters there, and the coarse
+    grid resolves it); None for an object without texture."""
+    return None if texture_mm is None else min(float(texture_mm), TEXTURE_CAP_THICKNESS * gel.thickness_mm)
+
+
+def envelope_kernel_px(tex_mm: float, dx: float) -> int:
+    """Side of the closing's square (odd, px at ``dx`` mm per pixel) that spans ENVELOPE_SPAN times the
+    texture's scale ``tex_mm`` (:func:`texture_scale_mm`)."""
+    return int(math.ceil(ENVELOPE_SPAN * tex_mm / dx)) | 1
+
+
+def crown_envelope(surface_mm: np.ndarray, tex_mm: float, dx: float) -> np.ndarray:
+    """The crown envelope of an object's own surface (mm, float32 (ny, nx) at ``dx`` mm per pixel): its
+    grey closing over ENVELOPE_SPAN times the texture's scale ``tex_mm``. Taken on the object's heights,
+    not on what the gel sees of them through its dome or a tilt: on a slope a flat closing follows the
+    surface into its valleys (on a monotone profile it changes nothing), and the vitac gel's dome
+    (slopes up to 0.12 at the pad's rim) hid up to half of a fine weave's depth below its crowns there."""
+    return _closing(surface_mm, envelope_kernel_px(tex_mm, dx))
 
 
 def _running_extreme(img: np.ndarray, k: int, op, axis: int) -> np.ndarray:
@@ -319,8 +342,16 @@ def _bearing_cut(te: np.ndarray, ny: int, nx: int, d_eff: np.ndarray, fs: int, p
 
 def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, depth_mm: float | None,
                    support: FabricSupport | None, texture_mm: float | None, window: str, macro_cells: int,
-                   warm: MacroState | None = None):
+                   warm: MacroState | None = None, sag: np.ndarray | None = None,
+                   envelope: Callable[[tuple[int, int, int, int]], np.ndarray] | None = None):
     """Press ``work`` (protrusion, mm, (ny, nx) at ``dx`` mm/px) into ``gel``.
+
+    ``sag``: the gel's dome, mm >= 0 (ny, nx), already subtracted from ``work`` (None: a flat gel);
+    the crown envelope is taken on the object's own heights, ``work + sag`` (see
+    :func:`crown_envelope`). ``envelope``: that envelope when already known for this frame, as a function
+    of a box (r0, r1, c0, c1) of the grid giving its rows r0:r1 and columns c0:c1 (mm, on the object's
+    own heights like ``work + sag``: a sequence takes it once on the object and sees it through each
+    frame's pose; only the touched window is read), or None to take it here over that window.
 
     Returns (depth mm (ny, nx) float32 before the membrane's blur, contact mask, approach mm,
     force N, bottomed, MacroState).
@@ -329,9 +360,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     pmax = float(work.max())
     vmax = gel.max_indentation_mm
     full = window == "full"
-    # The texture's scale, capped below the gel's thickness: coarser relief is the macro solve's
-    # (the layer's finite thickness matters there, and the coarse grid resolves it).
-    tex = None if texture_mm is None else min(float(texture_mm), TEXTURE_CAP_THICKNESS * gel.thickness_mm)
+    tex = texture_scale_mm(texture_mm, gel)
     # Below MIN_TEXTURE_PX pixels per period the texture is not resolved on this grid (its slopes
     # cannot be read): the macro solve takes the area-averaged surface and there is no texture stage.
     has_texture = tex is not None and tex >= MIN_TEXTURE_PX * dx
@@ -344,7 +373,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     for _ in range(2):
         box = bbox(work > np.float32(pmax - reach))
         sol = _solve_macro(work, box, dx, gel, tex if has_texture else None, support, force_n, depth_mm,
-                           macro_cells, warm)
+                           macro_cells, warm, sag)
         cb = bbox(sol.p > 0)
         if cb is None or max(cb[1] - cb[0], cb[3] - cb[2]) >= MIN_CONTACT_CELLS or sol.f == 1:
             break
@@ -388,12 +417,19 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     # the macro grid reads zero, see _window_pressure).
     w0, w1 = _widen(w0, w1, ny)
     v0, v1 = _widen(v0, v1, nx)
-    if has_texture:
+    if has_texture and envelope is not None:
+        env = envelope((w0, w1, v0, v1))
+        env = env if sag is None else cv2.subtract(env, sag[w0:w1, v0:v1])
+    elif has_texture:
         # (The interpolated coarse envelope would save this closing's 2-4 ms at 960x720, but loses
         # the holes and pores finer than a coarse cell: mesh contact 0.51 -> 0.38 of the reference's.)
-        ke = int(math.ceil(ENVELOPE_SPAN * tex / dx)) | 1
+        ke = envelope_kernel_px(tex, dx)
         W0, W1, V0, V1 = max(0, w0 - ke), min(ny, w1 + ke), max(0, v0 - ke), min(nx, v1 + ke)
-        env = _closing(work[W0:W1, V0:V1], ke)[w0 - W0:w1 - W0, v0 - V0:v1 - V0]
+        if sag is None:
+            env = crown_envelope(work[W0:W1, V0:V1], tex, dx)[w0 - W0:w1 - W0, v0 - V0:v1 - V0]
+        else:
+            env = crown_envelope(cv2.add(work[W0:W1, V0:V1], sag[W0:W1, V0:V1]), tex, dx)
+            env = cv2.subtract(env[w0 - W0:w1 - W0, v0 - V0:v1 - V0], sag[w0:w1, v0:v1])
     else:
         env = work[w0:w1, v0:v1]
     dwin = depth[w0:w1, v0:v1]
@@ -457,8 +493,8 @@ class _Macro:
     contact_exponent: float | None = None
 
 
-def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cells, warm) -> _Macro:
-    """The coarse contact problem over ``box`` = (r0, r1, c0, c1) of ``work`` (see press_twoscale)."""
+def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cells, warm, sag=None) -> _Macro:
+    """The coarse contact problem over ``box`` = (r0, r1, c0, c1) of ``work`` (``sag``: see press_twoscale)."""
     r0, r1, c0, c1 = box
     vmax = gel.max_indentation_mm
     region = work[r0:r1, c0:c1]
@@ -468,8 +504,13 @@ def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cell
     if tex is not None:
         # Crown envelope on the coarse grid: each cell's highest point (see _crown_pool), then a
         # closing over the texture's scale fills the valleys between crowns.
-        pooled = _crown_pool(region, f, cshape) if f > 1 else region
-        env_c = _closing(pooled, int(math.ceil(ENVELOPE_SPAN * tex / cm)) | 1).astype(np.float64)
+        # (On the object's own heights, see crown_envelope: the dome's sag added back, and taken off again
+        # after the closing at each cell's crown window's centre, pixel f i of the region.)
+        own = region if sag is None else cv2.add(region, sag[r0:r1, c0:c1])
+        pooled = _crown_pool(own, f, cshape) if f > 1 else own
+        env_c = crown_envelope(pooled, tex, cm).astype(np.float64)
+        if sag is not None:
+            env_c -= sag[r0:r1:f, c0:c1:f]
     else:
         env_c = _pool(region, f)
     emax = float(env_c.max())

@@ -116,6 +116,23 @@ def test_patch_sample_is_bilinear_to_the_last_row_and_column(yaw_deg):
     np.testing.assert_allclose(edge, ref, atol=1e-6)
 
 
+@pytest.mark.parametrize("yaw_deg,tilt", [(0.0, (0.0, 0.0)), (1e-4, (1.5, -2.0)), (7.0, (0.5, 0.5))],
+                         ids=["shift", "tremor-tilted", "turned"])
+def test_patch_sample_box_is_the_frame_cut(yaw_deg, tilt):
+    """A box of the frame (what the imprint reads of a sequence's crown envelope) holds the frame's
+    values there: to float rounding on its last row and column (the frame's are the filter's, the
+    box's the explicit formula's), and, turned, to the warp's 1/32 px coordinates times the slope."""
+    rng = np.random.default_rng(3)
+    patch = HeightPatch(rng.random((90, 120)).astype(np.float32), (0.0, 0.0), 1.0)
+    args = ((61, 81), 1.0, 59.3, 44.8, yaw_deg, tilt)
+    frame = patch.sample(*args)
+    for box in [(0, 61, 0, 81), (5, 40, 17, 80), (60, 61, 0, 1)]:
+        part = patch.sample(*args, box=box)
+        assert part.shape == (box[1] - box[0], box[3] - box[2]) and part.dtype == np.float32
+        np.testing.assert_allclose(part, frame[box[0]:box[1], box[2]:box[3]], rtol=0,
+                                   atol=1e-6 if yaw_deg < 1 else 1.0 / 32)
+
+
 def test_tilt_raises_the_leaning_side():
     flat = HeightPatch(np.zeros((50, 50), np.float32), (-10.0, -10.0), 0.4)
     img = flat.sample((11, 11), 0.1, 0.0, 0.0, 0.0, tilt_deg=(0.0, 2.0))
