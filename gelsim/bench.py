@@ -44,7 +44,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime
-import functools
 import hashlib
 import json
 import math
@@ -66,6 +65,7 @@ from .runtime import configure_worker
 from .fidelity import Fidelity, fidelity_levels, get_fidelity
 from .metrics import psnr, ssim_map
 from .motion import ACTIONS, Motion, sample_motion
+from .provenance import source_digest
 from .sensor import SensorProfile, load_profile
 from .sequence import SequenceOutput, render_sequence
 from .texture import RIM_SIGMAS, Band, band_for, band_rms, contact_region, pitches_mm, texture_frames
@@ -554,26 +554,6 @@ def _accumulate(acc: ErrorAcc, run: LevelRun, ref: LevelRun, mmpp: float, scene:
 # --------------------------------------------------------------------------------------
 # The yardstick cache
 # --------------------------------------------------------------------------------------
-@functools.lru_cache(maxsize=1)
-def source_digest() -> str:
-    """SHA-256 of what a run's result depends on besides its arguments: every gelsim module but the
-    bench's own (gelsim/bench.py, gelsim/cli/), every asset, and the numeric libraries' versions."""
-    import mujoco
-
-    from .params import ASSETS_DIR
-
-    h = hashlib.sha256()
-    pkg = Path(__file__).resolve().parent
-    root = pkg.parent
-    files = [f for f in sorted(pkg.rglob("*.py")) if f.name != "bench.py" and "cli" not in f.relative_to(pkg).parts]
-    files += sorted(f for f in Path(ASSETS_DIR).rglob("*") if f.is_file())
-    for f in files:
-        h.update(str(f.relative_to(root) if root in f.parents else f.name).encode())
-        h.update(f.read_bytes())
-    h.update(f"numpy {np.__version__} cv2 {cv2.__version__} mujoco {mujoco.__version__}".encode())
-    return h.hexdigest()
-
-
 def _array_digest(arrays: dict) -> str:
     h = hashlib.sha256()
     for k in sorted(arrays):

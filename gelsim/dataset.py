@@ -30,6 +30,7 @@ from . import __version__
 from . import schema
 from .atomic import atomic_write_json, atomic_write_npz
 from .errors import GelsimError
+from .provenance import source_digest
 from .schema import ACTIONS, SPLITS, sha256_of
 
 SPLIT_WEIGHTS = (7.0, 2.0, 1.0)  # the paper's 7:2:1 split, by sequence (the default of --split)
@@ -299,6 +300,10 @@ def _check_out_dir(root: Path, options: dict) -> dict | None:
         if diff:
             raise GelsimError(f"--out {root} was made with other library versions ({diff}), which give other bytes "
                               "from the same seed; resume it where those are installed, or choose another --out")
+        if m.get("source", source_digest()) != source_digest():
+            raise GelsimError(f"--out {root} was made by other gelsim code or assets (its manifest's source digest "
+                              "differs), which give other sequences from the same seed; finish it with that code, "
+                              "or choose another --out")
         return m
     # Writability is checked by creating the directory (nothing else is touched).
     try:
@@ -450,7 +455,7 @@ def _manifest(config: GenerateConfig, profile, catalog, specs, records: dict[str
         profile={"name": profile.name, "width_px": profile.image.width_px, "height_px": profile.image.height_px,
                  "mm_per_px": profile.image.mm_per_px, "fps_hz": profile.image.fps_hz},
         fabrics=[{k: getattr(catalog[i], k) for k in schema.FABRIC_FIELDS} for i in fabric_ids],
-        sequences=seqs, libraries=library_versions(),
+        sequences=seqs, libraries=library_versions(), source=source_digest(),
         **(_units_section(config, profile) if config.units else {}))
 
 
@@ -580,15 +585,22 @@ def ray_sequences(config: GenerateConfig, root: str, specs: list[SequenceSpec]) 
 
 
 def _check_node_libraries(root: str) -> None:
-    """A Ray node whose numeric libraries differ from those the manifest records (the driver's) would
-    write sequences that the same seed makes differently elsewhere: refused, one line naming them."""
-    diff = _library_difference(load_manifest(root).get("libraries"))
+    """A Ray node whose numeric libraries or gelsim code differ from those the manifest records (the
+    driver's) would write sequences that the same seed makes differently elsewhere: refused, one line
+    naming them."""
+    m = load_manifest(root)
+    diff = _library_difference(m.get("libraries"))
     if diff:
         from .cluster import node_description
 
         raise GelsimError(f"Ray node {node_description()} has other library versions than the dataset's ({diff}), "
                           "which give other bytes from the same seed; install the same versions on every node "
                           "(make install)")
+    if m.get("source", source_digest()) != source_digest():
+        from .cluster import node_description
+
+        raise GelsimError(f"Ray node {node_description()} has other gelsim code or assets than the dataset's (the "
+                          "manifest's source digest differs); install the same commit on every node (make install)")
 
 
 def _pool_start_method() -> str:

@@ -79,6 +79,10 @@ def sha256_of(path: Path) -> str:
 #: unit's parameters).
 MANIFEST_FIELDS = ("format", "format_version", "complete", "generator_version", "seed", "options",
                    "catalog_version", "profile", "fabrics", "splits", "libraries", "sequences")
+#: Fields a manifest may hold between ``libraries`` and ``sequences``, added within FORMAT_VERSION 1 (older
+#: datasets lack them): ``source`` (2026-11-27), the digest of the code and assets that made the dataset
+#: (:func:`gelsim.provenance.source_digest`); ``unit_variation`` and ``units`` (``--units K``).
+OPTIONAL_MANIFEST_FIELDS = ("source", "unit_variation", "units")
 #: The ``libraries`` entry: the packages whose version changes a dataset's bytes (OpenCV 4.14 and 5.0 give
 #: other fabric heightfields, so other contacts, labels and frames from the same seed).
 LIBRARIES = ("numpy", "scipy", "opencv", "numba", "mujoco", "av")
@@ -100,7 +104,7 @@ READ_FIELDS = ("id", "fabric_id", "num_frames", "split", "video")
 def make_manifest(*, complete: bool, generator_version: str, seed: int, options: dict, catalog_version: str,
                   profile: dict, fabrics: list[dict], libraries: dict, sequences: list[dict], **extra: Any) -> dict:
     """A manifest in MANIFEST_FIELDS order, ``splits`` counted from the sequences; ``extra`` fields
-    (``unit_variation``, ``units``) go before ``sequences``."""
+    (OPTIONAL_MANIFEST_FIELDS) go before ``sequences``."""
     return {"format": FORMAT, "format_version": FORMAT_VERSION, "complete": bool(complete),
             "generator_version": generator_version, "seed": seed, "options": options,
             "catalog_version": catalog_version, "profile": {k: profile[k] for k in PROFILE_FIELDS},

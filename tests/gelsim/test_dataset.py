@@ -287,6 +287,35 @@ def test_the_manifest_records_the_libraries_and_resume_refuses_others(tiny, tmp_
     assert _gen(out) == 0
 
 
+def test_resume_refuses_a_dataset_begun_by_other_code(tiny, tmp_path, capsys):
+    """Other gelsim code (a changed imprint, say) gives other sequences from the same seed: the manifest
+    records the code's digest, and a resume under other code is refused (one line, exit 2, nothing
+    touched), on the driver and on a Ray node; a manifest from before the field resumes."""
+    import shutil
+
+    from gelsim import dataset
+    from gelsim.provenance import source_digest
+
+    m = load_manifest(tiny)
+    assert m["source"] == source_digest() and len(m["source"]) == 64
+    out = tmp_path / "other"
+    shutil.copytree(tiny, out)
+    m["source"] = "0" * 64
+    (out / "manifest.json").write_text(json.dumps(m))
+    before = (out / "manifest.json").read_bytes()
+    capsys.readouterr()
+    assert _gen(out) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "other gelsim code" in err[0] and "choose another --out" in err[0]
+    assert (out / "manifest.json").read_bytes() == before
+    with pytest.raises(GelsimError, match="other gelsim code"):
+        dataset.ray_sequences(dataset.GenerateConfig(), str(out), [])
+    del m["source"]
+    (out / "manifest.json").write_text(json.dumps(m))
+    assert _gen(out) == 0
+    assert load_manifest(out)["source"] == source_digest()
+
+
 def _frames(root: Path, seq: dict) -> np.ndarray:
     from gelsim.video import read_video
 
