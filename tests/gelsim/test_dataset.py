@@ -259,61 +259,55 @@ def test_a_dataset_made_before_an_option_existed_resumes(tiny, tmp_path, capsys)
     assert err[-1].startswith("gelsim: error: --out") and "(split)" in err[-1]
 
 
-def test_the_manifest_records_the_libraries_and_resume_refuses_others(tiny, tmp_path, capsys):
-    """Another OpenCV (4.14 against 5.0) gives other heightfields, contacts, labels and frames from the
-    same seed, so the manifest records the numeric libraries' versions and a resume under others is
-    refused (one line naming them, exit 2, nothing touched); a manifest from before the field resumes."""
+def _check_resume_refused(tiny, tmp_path, capsys, field, value, says):
+    """A copy of ``tiny`` whose manifest's ``field`` is ``value`` (made elsewhere) is refused on resume: one
+    line holding each of ``says``, exit 2, the manifest untouched; a Ray node refuses its task the same way,
+    before writing anything. Without the field (a manifest from before it) the resume goes ahead."""
     import shutil
 
-    from gelsim import dataset, schema
+    from gelsim import dataset
 
     m = load_manifest(tiny)
-    assert m["libraries"] == dataset.library_versions() and list(m["libraries"]) == list(schema.LIBRARIES)
     out = tmp_path / "other"
     shutil.copytree(tiny, out)
-    m["libraries"] = {**m["libraries"], "opencv": "4.14.0"}
+    m[field] = value
     (out / "manifest.json").write_text(json.dumps(m))
     before = (out / "manifest.json").read_bytes()
     capsys.readouterr()
     assert _gen(out) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "opencv 4.14.0 (here " in err[0] and "other library versions" in err[0]
+    assert len(err) == 1 and all(x in err[0] for x in says), err
     assert (out / "manifest.json").read_bytes() == before
-    # a Ray node with other versions refuses its task the same way, before writing anything
-    with pytest.raises(GelsimError, match="other library versions .*opencv"):
+    with pytest.raises(GelsimError, match=says[-1]):
         dataset.ray_sequences(dataset.GenerateConfig(), str(out), [])
-    del m["libraries"]
+    del m[field]
     (out / "manifest.json").write_text(json.dumps(m))
     assert _gen(out) == 0
+    return load_manifest(out)
+
+
+def test_the_manifest_records_the_libraries_and_resume_refuses_others(tiny, tmp_path, capsys):
+    """Another OpenCV (4.14 against 5.0) gives other heightfields, contacts, labels and frames from the
+    same seed, so the manifest records the numeric libraries' versions and a resume under others is
+    refused (one line naming them, exit 2, nothing touched); a manifest from before the field resumes."""
+    from gelsim import dataset, schema
+
+    m = load_manifest(tiny)
+    assert m["libraries"] == dataset.library_versions() and list(m["libraries"]) == list(schema.LIBRARIES)
+    _check_resume_refused(tiny, tmp_path, capsys, "libraries", {**m["libraries"], "opencv": "4.14.0"},
+                          ("opencv 4.14.0 (here ", "other library versions"))
 
 
 def test_resume_refuses_a_dataset_begun_by_other_code(tiny, tmp_path, capsys):
     """Other gelsim code (a changed imprint, say) gives other sequences from the same seed: the manifest
     records the code's digest, and a resume under other code is refused (one line, exit 2, nothing
     touched), on the driver and on a Ray node; a manifest from before the field resumes."""
-    import shutil
-
-    from gelsim import dataset
     from gelsim.provenance import source_digest
 
-    m = load_manifest(tiny)
-    assert m["source"] == source_digest() and len(m["source"]) == 64
-    out = tmp_path / "other"
-    shutil.copytree(tiny, out)
-    m["source"] = "0" * 64
-    (out / "manifest.json").write_text(json.dumps(m))
-    before = (out / "manifest.json").read_bytes()
-    capsys.readouterr()
-    assert _gen(out) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "other gelsim code" in err[0] and "choose another --out" in err[0]
-    assert (out / "manifest.json").read_bytes() == before
-    with pytest.raises(GelsimError, match="other gelsim code"):
-        dataset.ray_sequences(dataset.GenerateConfig(), str(out), [])
-    del m["source"]
-    (out / "manifest.json").write_text(json.dumps(m))
-    assert _gen(out) == 0
-    assert load_manifest(out)["source"] == source_digest()
+    assert load_manifest(tiny)["source"] == source_digest() and len(source_digest()) == 64
+    resumed = _check_resume_refused(tiny, tmp_path, capsys, "source", "0" * 64,
+                                    ("choose another --out", "other gelsim code"))
+    assert resumed["source"] == source_digest()
 
 
 def _frames(root: Path, seq: dict) -> np.ndarray:
