@@ -301,9 +301,10 @@ def _check_out_dir(root: Path, options: dict) -> dict | None:
             raise GelsimError(f"--out {root} was made with other library versions ({diff}), which give other bytes "
                               "from the same seed; resume it where those are installed, or choose another --out")
         if m.get("source", source_digest()) != source_digest():
+            fix = ("delete it to make it anew with this code" if m.get("complete")
+                   else "finish it with the code that began it")
             raise GelsimError(f"--out {root} was made by other gelsim code or assets (its manifest's source digest "
-                              "differs), which give other sequences from the same seed; finish it with that code, "
-                              "or choose another --out")
+                              f"differs), which give other sequences from the same seed; {fix}, or choose another --out")
         return m
     # Writability is checked by creating the directory (nothing else is touched).
     try:

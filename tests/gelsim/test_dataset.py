@@ -306,8 +306,14 @@ def test_resume_refuses_a_dataset_begun_by_other_code(tiny, tmp_path, capsys):
 
     assert load_manifest(tiny)["source"] == source_digest() and len(source_digest()) == 64
     resumed = _check_resume_refused(tiny, tmp_path, capsys, "source", "0" * 64,
-                                    ("choose another --out", "other gelsim code"))
+                                    ("delete it to make it anew", "other gelsim code"))
     assert resumed["source"] == source_digest()
+    # a run interrupted under other code is to be finished by that code
+    m = {**resumed, "source": "0" * 64, "complete": False}
+    (tmp_path / "other" / "manifest.json").write_text(json.dumps(m))
+    capsys.readouterr()
+    assert _gen(tmp_path / "other") == 2
+    assert "finish it with the code that began it" in capsys.readouterr().err
 
 
 def _frames(root: Path, seq: dict) -> np.ndarray:
