@@ -300,7 +300,7 @@ def _check_out_dir(root: Path, options: dict) -> dict | None:
         if diff:
             raise GelsimError(f"--out {root} was made with other library versions ({diff}), which give other bytes "
                               "from the same seed; resume it where those are installed, or choose another --out")
-        if m.get("source", source_digest()) != source_digest():
+        if _other_source(m):
             fix = ("delete it to make it anew with this code" if m.get("complete")
                    else "finish it with the code that began it")
             raise GelsimError(f"--out {root} was made by other gelsim code or assets (its manifest's source digest "
@@ -585,6 +585,12 @@ def ray_sequences(config: GenerateConfig, root: str, specs: list[SequenceSpec]) 
     return [done.get(spec.id) or generate_sequence(spec) for spec in specs]
 
 
+def _other_source(manifest: dict) -> bool:
+    """Whether ``manifest`` records other gelsim code or assets than this process's (a manifest from before
+    the ``source`` field records none: not other)."""
+    return manifest.get("source", source_digest()) != source_digest()
+
+
 def _check_node_libraries(root: str) -> None:
     """A Ray node whose numeric libraries or gelsim code differ from those the manifest records (the
     driver's) would write sequences that the same seed makes differently elsewhere: refused, one line
@@ -597,7 +603,7 @@ def _check_node_libraries(root: str) -> None:
         raise GelsimError(f"Ray node {node_description()} has other library versions than the dataset's ({diff}), "
                           "which give other bytes from the same seed; install the same versions on every node "
                           "(make install)")
-    if m.get("source", source_digest()) != source_digest():
+    if _other_source(m):
         from .cluster import node_description
 
         raise GelsimError(f"Ray node {node_description()} has other gelsim code or assets than the dataset's (the "

@@ -228,7 +228,7 @@ def _envelope_reader(envelope_mm, prot_shape, ws) -> Callable[[tuple[int, int, i
     """``press``'s ``envelope_mm`` as a function of a box of the imprint grid ``ws`` (float32 mm): read
     as asked when the protrusion map is on that grid, else whole and resampled as that map is."""
     if callable(envelope_mm) and prot_shape == ws:
-        return lambda box: envelope_mm(box=box)
+        return envelope_mm
     env = np.asarray(envelope_mm() if callable(envelope_mm) else envelope_mm)
     if env.shape != prot_shape:
         raise GelsimError(f"envelope_mm is {env.shape}, the protrusion map {prot_shape}; give both on the same grid")
