@@ -114,7 +114,7 @@ class MacroState:
         """The local mean pressure on the work grid (MPa, float32; bilinear between block centres)."""
         ny, nx = self.work_shape
         return cv2.max(_window_pressure(self.pressure_mpa.astype(np.float32), self.block, self.origin,
-                                        (0, ny, 0, nx)), 0.0)
+                                        (0, ny, 0, nx), self.work_shape), 0.0)
 
 
 def _closing(img: np.ndarray, k: int) -> np.ndarray:
@@ -414,7 +414,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     v0, v1 = c0 + max(0, cb[2] - 1) * f, min(c1, c0 + (cb[3] + 1) * f)
     # A patch touching the frame's edge on a fine grid can leave a window one pixel wide; OpenCV
     # reads an array of up to 4 elements in one column as a scalar, so widen it (pressure beyond
-    # the macro grid reads zero, see _window_pressure).
+    # the macro grid reads zero inside the frame, see _window_pressure).
     w0, w1 = _widen(w0, w1, ny)
     v0, v1 = _widen(v0, v1, nx)
     if has_texture and envelope is not None:
@@ -447,10 +447,11 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         # Carried one cell past the contact cells: the fine patch reaches half a cell beyond them.
         comp = cv2.dilate(comp, np.ones((3, 3), np.uint8))
         # env - (emax - delta) - comp in one pass over the window.
-        pen_env = cv2.addWeighted(env, 1.0, _window_pressure(comp, f, (r0, c0), win), -1.0, -float(emax - delta))
+        pen_env = cv2.addWeighted(env, 1.0, _window_pressure(comp, f, (r0, c0), win, (ny, nx)), -1.0,
+                                  -float(emax - delta))
     else:
         pen_env = cv2.subtract(env, float(emax - delta))
-    in_macro = _window_pressure((p > 0).astype(np.float32), f, (r0, c0), win) >= 0.5
+    in_macro = _window_pressure((p > 0).astype(np.float32), f, (r0, c0), win, (ny, nx)) >= 0.5
     # The gel cannot pass through the object: inside the patch it lies at least as deep as the
     # penetration the gel takes (outside, the elastic displacement alone).
     cv2.max(dwin, cv2.multiply(pen_env, in_macro.view(np.uint8), dtype=cv2.CV_32F), dwin)
@@ -459,7 +460,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         cloth = 1e-3 * cloth_stiffness(support, p, force, area)
 
         def pressure_at(cs, shape):
-            return _cell_pressure(p, f, (r0, c0), (w0, w0 + shape[0], v0, v0 + shape[1]), cs)
+            return _cell_pressure(p, f, (r0, c0), (w0, w0 + shape[0], v0, v0 + shape[1]), cs, (ny, nx))
 
         texture = _texture_depth(work[w0:w1, v0:v1], env, pressure_at, dx, gel, support, tex, cloth)
         texture.add_to(dwin, in_macro, mask[w0:w1, v0:v1])
@@ -640,26 +641,47 @@ def _widen(a: int, b: int, n: int, least: int = MIN_WINDOW_PX) -> tuple[int, int
     return a, min(n, a + least)
 
 
-def _window_pressure(p: np.ndarray, f: int, origin, win) -> np.ndarray:
+def _frame_edges(origin: int, f: int, n: int, size: int) -> tuple[bool, bool]:
+    """Whether a coarse grid's low and high edges along one axis (``n`` blocks of ``f`` fine pixels from
+    fine pixel ``origin``) are the frame's (``size`` fine pixels)."""
+    return origin <= 0, origin + n * f >= size
+
+
+def _beyond(idx: np.ndarray, n: int, edges: tuple[bool, bool]) -> np.ndarray:
+    """Coarse indices ``idx`` mapped into a grid of ``n`` samples with one spare sample on each side
+    (index + 1; 0 and n + 1 read zero): beyond a frame edge (``edges``: low, high) the edge sample."""
+    lo = 1 if edges[0] else 0
+    hi = n if edges[1] else n + 1
+    return np.clip(idx + 1, lo, hi)
+
+
+def _window_pressure(p: np.ndarray, f: int, origin, win, frame: tuple[int, int]) -> np.ndarray:
     """A coarse field (e.g. the pressure, MPa) bilinearly at the fine pixels of ``win`` = (w0, w1,
-    v0, v1), given the coarse grid's origin (fine pixel of its first block) and block size ``f``:
-    float32 (w1 - w0, v1 - v0), a view into a slightly larger array."""
+    v0, v1), given the coarse grid's origin (fine pixel of its first block) and block size ``f``, in a
+    frame of ``frame`` = (ny, nx) fine pixels: float32 (w1 - w0, v1 - v0), a view into a slightly
+    larger array.
+
+    Beyond the grid the field is zero where the grid's edge lies inside the frame (the macro grid
+    covers what the object can reach: its edge cells are out of contact, and the contact's edge falls
+    at the midpoint, see press_twoscale) and holds its edge cells' values where the grid's edge is the
+    frame's (a contact the frame cuts goes on to the edge: a zero there halved the pressure and the
+    cloth's compression over the last half cell, and pressed a knit 0.1 mm too deep along the frame)."""
     r0, c0 = origin
     w0, w1, v0, v1 = win
-    # Coarse cells covering the window, one extra on each side for the interpolation (zero beyond
-    # the grid).
+    # Coarse cells covering the window, one extra on each side for the interpolation.
     i0, i1 = (w0 - r0) // f - 1, -(-(w1 - r0) // f) + 1
     j0, j1 = (v0 - c0) // f - 1, -(-(v1 - c0) // f) + 1
-    sub = np.zeros((i1 - i0, j1 - j0), np.float32)
-    a0, a1, b0, b1 = max(i0, 0), min(i1, p.shape[0]), max(j0, 0), min(j1, p.shape[1])
-    if a1 > a0 and b1 > b0:
-        sub[a0 - i0:a1 - i0, b0 - j0:b1 - j0] = p[a0:a1, b0:b1]
+    padded = np.zeros((p.shape[0] + 2, p.shape[1] + 2), np.float32)
+    padded[1:-1, 1:-1] = p
+    rows = _beyond(np.arange(i0, i1), p.shape[0], _frame_edges(r0, f, p.shape[0], frame[0]))
+    cols = _beyond(np.arange(j0, j1), p.shape[1], _frame_edges(c0, f, p.shape[1], frame[1]))
+    sub = padded[rows[:, None], cols[None, :]]
     up = _upsample(sub, f, ((i1 - i0) * f, (j1 - j0) * f))
     oy, ox = w0 - (r0 + i0 * f), v0 - (c0 + j0 * f)
     return up[oy:oy + w1 - w0, ox:ox + v1 - v0]  # (a view: OpenCV reads strided rows, no copy needed)
 
 
-def _cell_pressure(p: np.ndarray, f: int, origin, win, cs: tuple[int, int]) -> np.ndarray:
+def _cell_pressure(p: np.ndarray, f: int, origin, win, cs: tuple[int, int], frame: tuple[int, int]) -> np.ndarray:
     """The coarse pressure ``p`` (MPa; grid of ``f``-pixel blocks from fine pixel ``origin``) read as
     :func:`_window_pressure` reads it at the fine pixels of ``win`` = (w0, w1, v0, v1), then averaged
     over ``cs`` = (cols, rows) cells tiling the window as OpenCV's INTER_AREA does: float32
@@ -667,33 +689,34 @@ def _cell_pressure(p: np.ndarray, f: int, origin, win, cs: tuple[int, int]) -> n
     small matrices (the fine field and its average took two full-window passes)."""
     w0, w1, v0, v1 = win
     cols, rows = cs
-    ry = _axis_cell_matrix(w0, w1, origin[0], f, p.shape[0], rows)
-    rx = _axis_cell_matrix(v0, v1, origin[1], f, p.shape[1], cols)
+    ry = _axis_cell_matrix(w0, w1, origin[0], f, p.shape[0], rows, frame[0])
+    rx = _axis_cell_matrix(v0, v1, origin[1], f, p.shape[1], cols, frame[1])
     # OpenCV's product runs on the worker's one thread (numpy's BLAS may start threads at these sizes).
     out = cv2.gemm(cv2.gemm(ry, p.astype(np.float32), 1.0, None, 0.0), rx, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
     return np.maximum(out, np.float32(0.0))
 
 
 @functools.lru_cache(maxsize=16)
-def _axis_cell_matrix(a: int, b: int, origin: int, f: int, n: int, cells: int) -> np.ndarray:
+def _axis_cell_matrix(a: int, b: int, origin: int, f: int, n: int, cells: int, size: int) -> np.ndarray:
     """float32 (cells, n), read-only: the n coarse samples (``f``-pixel blocks from fine pixel ``origin``)
     read bilinearly at fine pixels a..b-1, then averaged over ``cells`` cells tiling them (one axis of
     :func:`_cell_pressure`). Cached: a sequence's frames mostly share their window (a whole-pad cloth:
     72% of the captured frames' axes), and building it took about half of _cell_pressure's time."""
-    m = _cell_means(_bilinear_matrix((np.arange(a, b) + 0.5 - origin) / f - 0.5, n), cells)
+    m = _cell_means(_bilinear_matrix((np.arange(a, b) + 0.5 - origin) / f - 0.5, n,
+                                     _frame_edges(origin, f, n, size)), cells)
     m.flags.writeable = False
     return m
 
 
-def _bilinear_matrix(coords: np.ndarray, n: int) -> np.ndarray:
-    """float32 (len(coords), n): linear interpolation weights of samples 0..n-1 at ``coords`` (sample units),
-    zero weight for samples beyond 0..n-1 (a zero border)."""
+def _bilinear_matrix(coords: np.ndarray, n: int, edges: tuple[bool, bool] = (False, False)) -> np.ndarray:
+    """float32 (len(coords), n): linear interpolation weights of samples 0..n-1 at ``coords`` (sample units);
+    beyond 0..n-1 a zero, or at a frame edge (``edges``: low, high) the edge sample (as _window_pressure)."""
     i0 = np.floor(coords).astype(np.intp)
     w = (coords - i0).astype(np.float32)
     m = np.zeros((len(coords), n + 2), np.float32)   # one spare column on each side, dropped below
     r = np.arange(len(coords))
-    m[r, np.clip(i0 + 1, 0, n + 1)] += 1.0 - w
-    m[r, np.clip(i0 + 2, 0, n + 1)] += w
+    m[r, _beyond(i0, n, edges)] += 1.0 - w
+    m[r, _beyond(i0 + 1, n, edges)] += w
     return np.ascontiguousarray(m[:, 1:n + 1])
 
 

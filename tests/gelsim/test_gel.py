@@ -286,10 +286,12 @@ def test_an_incompressible_cloth_is_rigid_even_when_its_compression_underflows(c
     assert FabricSupport(0.5, 0.3, 1.0).secant_stiffness_kpa_per_mm(2.0) < math.inf
 
 
+@pytest.mark.parametrize("frame", [(720, 960), (1000, 829)], ids=["edges-top-bottom", "edges-top-right"])
 @pytest.mark.parametrize("win, cs", [((10, 700, 20, 800), (260, 230)), ((0, 37, 5, 90), (17, 7)), ((3, 9, 0, 8), (8, 6))])
-def test_cell_pressure_is_the_cell_mean_of_the_fine_field(win, cs):
+def test_cell_pressure_is_the_cell_mean_of_the_fine_field(win, cs, frame):
     """The texture statistics' pressure straight from the coarse grid equals the fine field's cell
-    means (window_pressure, then OpenCV's INTER_AREA), non-dividing cells included."""
+    means (window_pressure, then OpenCV's INTER_AREA), non-dividing cells included, whichever of the
+    grid's edges are the frame's (the grid spans rows -12..738 and columns 4..829)."""
     import cv2
 
     from gelsim.gel.twoscale import _cell_pressure, _window_pressure
@@ -297,11 +299,25 @@ def test_cell_pressure_is_the_cell_mean_of_the_fine_field(win, cs):
     rng = np.random.default_rng(4)
     p = np.where(rng.random((50, 55)) > 0.3, rng.random((50, 55)), 0.0)
     f, origin = 15, (-12, 4)
-    fine = _window_pressure(p.astype(np.float32), f, origin, win)
+    fine = _window_pressure(p.astype(np.float32), f, origin, win, frame)
     want = cv2.resize(fine, cs, interpolation=cv2.INTER_AREA) if fine.shape[::-1] != cs else fine
-    got = _cell_pressure(p, f, origin, win, cs)
+    got = _cell_pressure(p, f, origin, win, cs, frame)
     assert got.shape == want.shape
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)
+
+
+def test_a_coarse_field_holds_to_the_frame_edge_and_falls_to_zero_inside_it():
+    """A uniform coarse field read at the fine pixels: where the grid's edge is the frame's (top and
+    left here), it holds its value out to the edge (the contact goes on beyond the frame); where the
+    grid ends inside the frame (bottom and right), it falls to zero half a cell beyond its last
+    centre, the contact's edge at the midpoint."""
+    from gelsim.gel.twoscale import _window_pressure
+
+    f, p = 10, np.full((4, 5), 2.0, np.float32)
+    fine = _window_pressure(p, f, (0, 0), (0, 50, 0, 60), (100, 100))
+    np.testing.assert_allclose(fine[:35, :45], 2.0)      # to the last centres, and out to the top and left edges
+    assert fine[40, 10] == pytest.approx(1.0, abs=0.11) and fine[10, 50] == pytest.approx(1.0, abs=0.11)
+    assert fine[49, 10] == 0.0 and fine[10, 59] == 0.0   # a cell beyond the grid: zero
 
 
 def _twist_labels(monkeypatch, passes=None, tol=None):
