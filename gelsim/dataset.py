@@ -595,17 +595,15 @@ def _check_node_libraries(root: str) -> None:
     """A Ray node whose numeric libraries or gelsim code differ from those the manifest records (the
     driver's) would write sequences that the same seed makes differently elsewhere: refused, one line
     naming them."""
+    from .cluster import node_description
+
     m = load_manifest(root)
     diff = _library_difference(m.get("libraries"))
     if diff:
-        from .cluster import node_description
-
         raise GelsimError(f"Ray node {node_description()} has other library versions than the dataset's ({diff}), "
                           "which give other bytes from the same seed; install the same versions on every node "
                           "(make install)")
     if _other_source(m):
-        from .cluster import node_description
-
         raise GelsimError(f"Ray node {node_description()} has other gelsim code or assets than the dataset's (the "
                           "manifest's source digest differs); install the same commit on every node (make install)")
 

@@ -708,7 +708,7 @@ def _axis_cell_matrix(a: int, b: int, origin: int, f: int, n: int, cells: int, s
     return m
 
 
-def _bilinear_matrix(coords: np.ndarray, n: int, edges: tuple[bool, bool] = (False, False)) -> np.ndarray:
+def _bilinear_matrix(coords: np.ndarray, n: int, edges: tuple[bool, bool]) -> np.ndarray:
     """float32 (len(coords), n): linear interpolation weights of samples 0..n-1 at ``coords`` (sample units);
     beyond 0..n-1 a zero, or at a frame edge (``edges``: low, high) the edge sample (as _window_pressure)."""
     i0 = np.floor(coords).astype(np.intp)
