@@ -9,7 +9,7 @@ from gelsim import indenters
 from gelsim.fidelity import get_fidelity
 from gelsim.gel import FabricSupport, press
 from gelsim.gel.layer import Operator
-from gelsim.gel.twoscale import _crown_pool
+from gelsim.gel.twoscale import _crown_pool, coarse_envelope_kernel_cells, envelope_kernel_px
 from gelsim.gel.util import bbox
 from gelsim.sensor import load_profile
 
@@ -127,3 +127,16 @@ def test_a_loading_sequence_predicts_its_contact_and_keeps_the_cloths_fixed_poin
         assert im.indentation_mm == pytest.approx(cold.indentation_mm, rel=0.03)
         assert im.contact_area_mm2 == pytest.approx(cold.contact_area_mm2, rel=0.03)
         warm = im
+
+
+@pytest.mark.parametrize("f", [2, 3, 5, 8, 15])
+def test_the_coarse_closing_and_the_pooled_cell_span_the_fine_closing(f):
+    # Pooling fills a valley narrower than about a cell and a closing of k cells those narrower than k
+    # more: k + 1 cells must cover the fine grid's closing (else the macro grid sees valleys the fine
+    # envelope fills) and k - 1 must not (else it fills wider ones). k odd, at least 1.
+    for tex in np.linspace(0.1, 2.0, 77):
+        for dx in (0.0197, 0.0394, 0.0591):
+            k, fine = coarse_envelope_kernel_cells(tex, dx, f), envelope_kernel_px(tex, dx)
+            assert k % 2 == 1 and k >= 1
+            assert (k + 1) * f >= fine
+            assert k == 1 or (k - 1) * f < fine
