@@ -151,6 +151,7 @@ def coarse_envelope_kernel_cells(tex_mm: float, dx: float, f: int) -> int:
     point within about a cell, so pooling and a closing of k cells fill those narrower than about k + 1
     cells. k is the smallest odd count whose k + 1 cells span the fine closing (at least 1: no
     closing), so that the macro solve neither sees valleys the fine envelope fills nor fills wider ones.
+    At ``f`` = 1 (no pooling) it is the fine grid's own closing.
 
     (The fine grid's rule applied to the cells, with no allowance for the pooling, closed up to 2.5x
     the span: 3 cells on the 0.3 mm cells of a whole-pad press at 64 cells, for a 0.36 mm span. The
@@ -527,8 +528,7 @@ def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cell
         # after the closing at each cell's crown window's centre, pixel f i of the region.)
         own = region if sag is None else cv2.add(region, sag[r0:r1, c0:c1])
         pooled = _crown_pool(own, f, cshape) if f > 1 else own
-        k = coarse_envelope_kernel_cells(tex, dx, f) if f > 1 else envelope_kernel_px(tex, dx)
-        env_c = _closing(pooled, k).astype(np.float64)
+        env_c = _closing(pooled, coarse_envelope_kernel_cells(tex, dx, f)).astype(np.float64)
         if sag is not None:
             env_c -= sag[r0:r1:f, c0:c1:f]
     else:
