@@ -1,6 +1,6 @@
 """The ``stam`` command line: a thin layer over stam's Python API.
 
-Commands: info, onsets, pretrain, train, evaluate, experiment, explain. Bad input prints
+Commands: info, onsets, pretrain, train, evaluate, experiment, compare, explain. Bad input prints
 one line ``stam: error: <problem>; <fix>`` and exits with status 2.
 """
 from __future__ import annotations
@@ -129,6 +129,19 @@ def _experiment(args) -> int:
                 print(open(res[k]).read())
         print(f"plot: {res['plot']}")
     return 0
+
+
+def _compare(args) -> int:
+    from gelsim.atomic import atomic_write_text
+
+    from .compare import compare_runs, markdown
+
+    res = compare_runs(args.run_a, args.run_b)
+    text = markdown(res)
+    if args.out:
+        atomic_write_text(args.out, text)
+        res["markdown"] = str(args.out)
+    return print_result(args.json, res, text.rstrip("\n"))
 
 
 def _explain(args) -> int:
@@ -274,6 +287,23 @@ def build_parser() -> argparse.ArgumentParser:
                         "cuda): alone, on a Ray instance started here; 'auto' or HOST:PORT, on that cluster, "
                         "whose nodes must mount --data and --out at the same paths (checked first). "
                         "Pretraining stays here. Same results as a local run with the same threads; needs `make ray`")
+
+    s = cmd("compare", _compare, "two `stam experiment` runs on the same test sequences, cell by cell: "
+            "B - A with paired 95% CIs, per n and averaged over n, and the change in attention's gain over the CNN",
+            """two `stam experiment` runs on the same test sequences, cell by cell
+
+For each cell (setting, n, model) that both runs have: the accuracies and the paired difference
+B - A in points with its 95% CI, per n and averaged over n; the attention models' gain over the
+CNN in each run and its change; and all shared cells averaged (a run-wide shift, such as another
+backbone's, moves every cell together). Intervals as `stam experiment`'s: a bootstrap over the
+shared test sequences (each run's seeds averaged, the same resamples for every statistic), widened
+by each run's seed shift. The runs must have tested the same sequences: datasets made with the
+same `gelsim generate` plan (for instance the same options at another --resolution).
+
+  stam compare out/tables-320 out/tables-960 --out out/960-vs-320.md""")
+    s.add_argument("run_a", metavar="A", help="the --out directory of the first run (the baseline)")
+    s.add_argument("run_b", metavar="B", help="the --out directory of the second run")
+    s.add_argument("--out", help="also write the markdown tables to this file")
 
     s = cmd("explain", _explain, "Grad-CAM per frame and STAM's temporal attention map for one window (PNG)")
     s.add_argument("--checkpoint", action="append", required=True, help="best.pt of a run (repeatable: cnn, cnn_sa, stam)")
