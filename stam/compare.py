@@ -21,7 +21,7 @@ import numpy as np
 
 from . import stats
 from .errors import StamError
-from .experiment import SHORT_LABELS, _correct, _shift_spread
+from .experiment import SHORT_LABELS, _ci_text, _correct, _interval, _shift_spread
 
 SETTING_ORDER = ("clean", "noisy")
 MODEL_ORDER = ("cnn", "cnn_sa", "stam")
@@ -112,8 +112,7 @@ def compare_runs(a: str | Path, b: str | Path) -> dict:
     ci = {}
     for name, (mean, lo, hi), spread in zip(names, stats.bootstrap_intervals(np.stack(columns, axis=1)), spreads):
         lo, hi = stats.widen(mean, lo, hi, spread)
-        ci[name] = {"mean": 100 * float(mean), "ci95": [100 * float(lo), 100 * float(hi)],
-                    "resolved": bool(lo > 0 or hi < 0)}
+        ci[name] = {**_interval(mean, lo, hi), "resolved": bool(lo > 0 or hi < 0)}
 
     def acc(run, k):
         return 100 * float(correct[(run, k)].mean())
@@ -132,10 +131,9 @@ def compare_runs(a: str | Path, b: str | Path) -> dict:
             "all_cells": {"cells": len(keys), "difference": ci[("all",)]}}
 
 
-def _ci(d: dict, bold: bool = True) -> str:
-    lo, hi = d["ci95"]
-    text = f"{d['mean']:+.1f} [{lo:+.1f}, {hi:+.1f}]"
-    return f"**{text}**" if bold and d["resolved"] else text
+def _ci(d: dict) -> str:
+    text = _ci_text(d, signed=True)
+    return f"**{text}**" if d["resolved"] else text
 
 
 def markdown(result: dict) -> str:
