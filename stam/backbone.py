@@ -5,7 +5,8 @@ out: ``features`` = conv 64-11/4 p2, ReLU, max-pool 3/2, conv 192-5 p2, ReLU, ma
 conv 384-3 p1, ReLU, conv 256-3 p1, ReLU, conv 256-3 p1, ReLU, max-pool. STAM cuts the
 network at that last max-pool (the paper's "output feature map from the last max-pooling
 layer"). ``width`` multiplies every channel count and the fc hidden size, so that a
-CPU-sized run keeps the architecture's shape.
+CPU-sized run keeps the architecture's shape. ``cut="conv5"`` stops before that max-pool
+(the map conv5 gives, for models that attend there and pool afterwards).
 """
 from __future__ import annotations
 
@@ -17,6 +18,8 @@ ALEXNET_CHANNELS = (64, 192, 384, 256, 256)
 ALEXNET_HIDDEN = 4096
 # torchvision pools the last feature map to 6x6 before fc6 (the map a 224 px input gives).
 ALEXNET_POOL = 6
+# Where the feature extractor stops: after the last max-pool (the paper's F) or before it.
+CUTS = ("pool5", "conv5")
 
 
 def scaled(c: int, width: float) -> int:
@@ -27,11 +30,15 @@ def scaled(c: int, width: float) -> int:
 class AlexNetFeatures(nn.Module):
     """AlexNet's convolutional part; input ``B x 3 x S x S`` -> ``B x C x h x w``.
 
-    At S = 224 px, (C, h, w) = (256 * width, 6, 6); at 160 px 4 x 4; at 128 px 3 x 3.
+    At S = 224 px, (C, h, w) = (256 * width, 6, 6); at 160 px 4 x 4; at 128 px 3 x 3. With
+    ``cut="conv5"`` the last max-pool is left out: 13 x 13 at 224 px, 7 x 7 at 128 px. (The pool
+    has no weights, so one state dict serves both cuts.)
     """
 
-    def __init__(self, width: float = 1.0, batchnorm: bool = False):
+    def __init__(self, width: float = 1.0, batchnorm: bool = False, cut: str = "pool5"):
         super().__init__()
+        if cut not in CUTS:
+            raise ValueError(f"cut {cut!r} unknown; use one of {', '.join(CUTS)}")
         c1, c2, c3, c4, c5 = (scaled(c, width) for c in ALEXNET_CHANNELS)
         self.out_channels = c5
         self.width = width
@@ -51,8 +58,9 @@ class AlexNetFeatures(nn.Module):
             *conv(c2, c3, kernel_size=3, padding=1),
             *conv(c3, c4, kernel_size=3, padding=1),
             *conv(c4, c5, kernel_size=3, padding=1),
-            nn.MaxPool2d(kernel_size=3, stride=2),
+            *([nn.MaxPool2d(kernel_size=3, stride=2)] if cut == "pool5" else []),
         )
+        self.cut = cut
         # He initialisation: with PyTorch's default (uniform, gain 1/sqrt(3)) five ReLU layers
         # without normalisation shrink the activations about 30-fold, and a model trained from
         # scratch (no ImageNet weights here) then barely moves off chance for several epochs.
@@ -87,13 +95,13 @@ def fold_batchnorm(net: AlexNetFeatures) -> AlexNetFeatures:
     return plain
 
 
-def feature_size(image_size: int) -> int:
-    """Side of the last max-pool's output for a square input of ``image_size`` px."""
+def feature_size(image_size: int, cut: str = "pool5") -> int:
+    """Side of the feature map for a square input of ``image_size`` px: the last max-pool's output
+    (``cut="pool5"``) or conv5's, before it (``"conv5"``)."""
     s = (image_size + 2 * 2 - 11) // 4 + 1
     s = (s - 3) // 2 + 1
     s = (s - 3) // 2 + 1
-    s = (s - 3) // 2 + 1
-    return s
+    return s if cut == "conv5" else (s - 3) // 2 + 1
 
 
 class AlexNetHead(nn.Module):

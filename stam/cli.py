@@ -118,8 +118,9 @@ def _experiment(args) -> int:
 
         import_ray()  # not installed: one line, before anything is written
     stdout = sys.stdout  # progress lines stay on stdout while Ray's own messages go to stderr (gelsim.cluster)
+    overrides = {"attention_at": args.attention_at} if args.attention_at else None
     res = run_experiment(args.data, args.out, args.preset, args.seeds, args.models, args.frames, args.settings,
-                         log=None if args.json else (lambda m: print(m, file=stdout)),
+                         overrides=overrides, log=None if args.json else (lambda m: print(m, file=stdout)),
                          note=lambda m: print(m, file=sys.stderr), ray=args.ray)
     if args.json:
         print_json({k: v for k, v in res.items() if k != "cells"} | {"cells": len(res["cells"])})
@@ -282,6 +283,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--models", nargs="+", choices=MODEL_NAMES, help="subset of models (default all)")
     s.add_argument("--frames", nargs="+", type=int, help="subset of n (default 2..7)")
     s.add_argument("--settings", nargs="+", choices=("clean", "noisy"), help="subset of settings (default both)")
+    s.add_argument("--attention-at", choices=("pool5", "conv5"),
+                   help="where the attention reads the backbone: pool5, after its last max-pool (the paper's F; "
+                        "the presets' default), or conv5, before it, the pool following the attention (7 x 7 "
+                        "positions per frame at the cpu preset's 128 px instead of 3 x 3; the CNN is the same "
+                        "function). Use a new --out for each")
     s.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
                    help="train the cells as Ray tasks (one CPU each, or the preset's threads; a GPU with device "
                         "cuda): alone, on a Ray instance started here; 'auto' or HOST:PORT, on that cluster, "

@@ -56,6 +56,8 @@ class TrainConfig:
     sa_batchnorm: bool = False
     dropout: float = param(0.5, lo=0.0, hi=1.0)
     hidden: int = param(0, lo=0, doc="fc6/fc7 width (0 = 4096 x width)")
+    # where the attention reads the backbone: after its last max-pool (the paper's F) or before it
+    attention_at: Literal["pool5", "conv5"] = "pool5"
     pretrained: str = ""           # backbone checkpoint from `stam pretrain` ("" = random init)
     freeze_backbone: bool = False
     epochs: int = param(30, lo=1)
@@ -82,7 +84,7 @@ class TrainConfig:
         return {"width": self.width, "image_size": self.image_size, "fusion": self.fusion,
                 "modules": self.modules, "combine": self.combine, "qk_reduction": self.qk_reduction,
                 "residual_gain": self.residual_gain, "sa_batchnorm": self.sa_batchnorm, "dropout": self.dropout,
-                "hidden": self.hidden}
+                "hidden": self.hidden, "attention_at": self.attention_at}
 
 
 @dataclass(frozen=True)

@@ -67,14 +67,16 @@ PAPER_FRAMES = [2, 3, 4, 5, 6, 7]
 
 
 def _feature_cache(out: Path, backbone_path: Path, data: TactileDataset, width: float, image_size: int,
-                   log) -> tuple[Path, dict]:
-    """(path, features): the frozen backbone's features of every frame, computed once into ``out``."""
+                   log, cut: str = "pool5") -> tuple[Path, dict]:
+    """(path, features): the frozen backbone's features of every frame, computed once into ``out``
+    (``cut``: where the backbone stops, see stam.backbone.AlexNetFeatures)."""
     digest = hashlib.sha256(backbone_path.read_bytes()).hexdigest()[:12]
-    path = out / f"features-{digest}-{image_size}px-crop{data.crop:g}.pt"
+    tag = "" if cut == "pool5" else f"-{cut}"   # (pool5 files keep the names they had)
+    path = out / f"features-{digest}-{image_size}px-crop{data.crop:g}{tag}.pt"
     if path.is_file():
         return path, torch.load(path, map_location="cpu", weights_only=True)
     t0 = time.perf_counter()
-    net = AlexNetFeatures(width)
+    net = AlexNetFeatures(width, cut=cut)
     load_backbone(net, str(backbone_path))
     feats = backbone_features(net, data, data.sequences, image_size)
     save_atomic(feats, path)
@@ -130,6 +132,22 @@ def _finished_cell(cell_dir: Path, out: Path, test_ids: list[str], data: Tactile
     if sorted(cell["test_ids"]) != test_ids:
         raise StamError(f"{path} was tested on other sequences than this dataset's test split; {rerun}")
     return cell
+
+
+def _check_cell_options(cell_dir: Path, base: TrainConfig) -> None:
+    """Refuse to reuse a finished cell trained with other model options than ``base`` (e.g. another
+    ``attention_at``): its config.json (written by stam.train) names them. Options the config predates
+    read as their defaults."""
+    path = cell_dir / "config.json"
+    if not (cell_dir / "result.json").is_file() or not path.is_file():
+        return
+    saved = json.loads(path.read_text())
+    default = TrainConfig()
+    for k, v in base.model_options().items():
+        had = saved.get(k, getattr(default, k))
+        if had != v:
+            raise StamError(f"{cell_dir} was trained with {k} = {had!r}, this run asks for {v!r}; use a new --out "
+                            "for another model setting")
 
 
 def _cell_dir(out: Path, key: tuple) -> Path:
@@ -257,9 +275,12 @@ def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, over
                                      "preset": cfg.name}, "the experiment's overrides")
     feats = features_path = None
     if base.freeze_backbone:
-        features_path, feats = _feature_cache(out, Path(pt["path"]), data, base.width, size, log)
+        features_path, feats = _feature_cache(out, Path(pt["path"]), data, base.width, size, log,
+                                                base.attention_at)
 
     todo = [(seed, setting, n, m) for seed in range(seeds) for setting in settings for n in frames for m in models]
+    for key in todo:
+        _check_cell_options(_cell_dir(out, key), base)
     finished = {key: _finished_cell(_cell_dir(out, key), out, test_ids, data, feats, log) for key in todo}
     train_keys = [key for key in todo if finished[key] is None]
     for cell in _cell_results(base, out, train_keys, data, feats, features_path, cluster):

@@ -26,6 +26,10 @@ Choices the paper leaves open (each an option of :func:`build`, argued in docs/s
   (Eq. 3 verbatim: A v + x).
 * ``sa_batchnorm``: the official CBAM code puts BatchNorm after the 7x7 conv; the paper's
   Eq. 1 has none (default False).
+* ``attention_at``: ``pool5`` (default; the paper's F, after the last max-pool) or ``conv5``:
+  the attention reads conv5's map, before that pool, and the pool follows it (so the CNN is the
+  same function at both). At 128 px that is 7 x 7 positions per frame instead of 3 x 3, about the
+  paper's 6 x 6 at 224 px; a diagnostic of the cpu preset's small map (docs/stam.md).
 """
 from __future__ import annotations
 
@@ -35,7 +39,7 @@ from torch import nn
 
 from gelsim.errors import check_choice
 
-from .backbone import AlexNetFeatures, AlexNetHead, feature_size
+from .backbone import CUTS, AlexNetFeatures, AlexNetHead, feature_size
 from .errors import StamError
 
 MODEL_NAMES = ("cnn", "cnn_sa", "stam")
@@ -118,9 +122,10 @@ class SequenceModel(nn.Module):
                  image_size: int = 224, fusion: str = "mean_logits", modules: int = 10,
                  combine: str = "mean", qk_reduction: int = 8, residual_gain: str = "learned",
                  sa_batchnorm: bool = False, dropout: float = 0.5, pool: int | None = None,
-                 hidden: int = 0):
+                 hidden: int = 0, attention_at: str = "pool5"):
         super().__init__()
         check_choice("model", name, MODEL_NAMES, StamError)
+        check_choice("attention_at", attention_at, CUTS, StamError)
         check_choice("fusion", fusion, FUSIONS, StamError)
         check_choice("combine", combine, COMBINES, StamError)
         if n_frames < 1:
@@ -132,7 +137,9 @@ class SequenceModel(nn.Module):
             raise StamError(f"image_size {image_size} px is too small for AlexNet; use at least 64")
         self.name, self.n_frames, self.num_classes, self.fusion = name, n_frames, num_classes, fusion
         self.combine = combine
-        self.backbone = AlexNetFeatures(width)
+        self.backbone = AlexNetFeatures(width, cut=attention_at)
+        # conv5's map is pooled as the backbone's last layer would have, after the attention
+        self.pool5 = nn.MaxPool2d(kernel_size=3, stride=2) if attention_at == "conv5" else None
         c = self.backbone.out_channels
         self.spatial = SpatialAttention(batchnorm=sa_batchnorm) if name in ("cnn_sa", "stam") else None
         if name == "stam":
@@ -167,6 +174,9 @@ class SequenceModel(nn.Module):
     def classify(self, f: torch.Tensor) -> torch.Tensor:
         """Head and fusion: attended ``B x n x C x h x w`` -> ``B x num_classes`` logits."""
         b, n = f.shape[:2]
+        if self.pool5 is not None:
+            f = self.pool5(f.flatten(0, 1))
+            f = f.view(b, n, *f.shape[1:])
         if self.fusion == "mean_logits":
             return self.head(f.flatten(0, 1)).view(b, n, -1).mean(1)
         pooled = f.mean(1) if self.fusion == "mean_features" else f.amax(1)
@@ -188,7 +198,7 @@ def build(name: str, n_frames: int, num_classes: int, **options) -> SequenceMode
     Options (see the module docstring): width (channel multiplier, 1.0 = AlexNet),
     image_size (px, square input; 224), fusion, modules (10), combine, qk_reduction (8),
     residual_gain, sa_batchnorm, dropout (0.5), pool (fc6 input map side; default the
-    backbone's map side), hidden (fc6/fc7 width; 0 = 4096 x width).
+    last max-pool's map side), hidden (fc6/fc7 width; 0 = 4096 x width), attention_at (pool5 | conv5).
     """
     return SequenceModel(name, n_frames, num_classes, **options)
 
