@@ -89,6 +89,34 @@ def test_experiment_tables_and_resume(tiny_experiment):
     assert two["seed_check"]["cells"] == 1 and two["differences"] == []
 
 
+def test_experiment_attention_at_conv5(tiny_experiment, tmp_path, capsys):
+    import shutil
+
+    import torch
+
+    out = tmp_path / "conv5"
+    out.mkdir()
+    shutil.copytree(tiny_experiment["out"] / "pretrain", out / "pretrain")   # reused: same settings
+    args = ["experiment", "--data", str(tiny_experiment["data"]), "--out", str(out), "--preset",
+            str(tiny_experiment["preset"]), "--models", "cnn", "cnn_sa", "--frames", "2", "--settings", "clean",
+            "--attention-at", "conv5", "--json"]
+    assert cli.main(args) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["cells"] == 2 and res["pretrain"]["reused"]
+    # Features at conv5 (96 px: 5 x 5, pool5 2 x 2), in a file of their own.
+    (path,) = out.glob("features-*.pt")
+    assert path.name.endswith("-conv5.pt")
+    feats = torch.load(path, weights_only=True)
+    assert next(iter(feats.values())).shape[-2:] == (5, 5)
+    cell = out / "cells" / "clean" / "n2" / "cnn_sa" / "seed0"
+    assert json.loads((cell / "config.json").read_text())["attention_at"] == "conv5"
+    # The same --out at pool5 would mix the two settings' cells: refused in one line, exit 2.
+    assert cli.main(args[:-3]) == 2
+    err = capsys.readouterr().err.strip().splitlines()   # (the small-split warning, then the error)
+    assert err[-1].startswith("stam: error:") and "attention_at = 'conv5'" in err[-1]
+    assert not any(e.startswith("Traceback") for e in err)
+
+
 def test_markdown_table_layout():
     tables = {"clean": {m: {n: {"mean": 50.0, "ci95": [47.25, 52.75], "std": 1.5, "seeds": 3, "values": []}
                             for n in range(2, 8)} for m in PAPER_TABLES["clean"]}}

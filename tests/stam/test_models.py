@@ -160,3 +160,31 @@ def test_fold_batchnorm_gives_the_same_plain_alexnet():
     assert set(plain.state_dict()) == set(AlexNetFeatures(0.25).state_dict())
     x = torch.randn(2, 3, 96, 96)
     assert torch.allclose(plain(x), bn(x), atol=1e-4, rtol=1e-4)
+
+
+def test_attention_at_conv5_reads_the_map_before_the_last_pool():
+    from stam.backbone import feature_size
+
+    assert (feature_size(128), feature_size(128, "conv5")) == (3, 7)
+    assert (feature_size(224), feature_size(224, "conv5")) == (6, 13)
+    torch.manual_seed(0)
+    x = torch.randn(2, 3, 3, 128, 128)
+    # The CNN is the same function at both cuts (the pool moves from the backbone to the head's input).
+    a = build("cnn", 3, 7, width=0.125, image_size=128, hidden=32).eval()
+    b = build("cnn", 3, 7, width=0.125, image_size=128, hidden=32, attention_at="conv5").eval()
+    b.load_state_dict(a.state_dict())
+    with torch.no_grad():
+        torch.testing.assert_close(a(x), b(x), rtol=0, atol=0)
+        assert b.frame_features(x).shape == (2, 3, 32, 7, 7)   # 256 x 0.125 channels
+    # With attention the two differ: the spatial map has 7 x 7 positions at conv5, 3 x 3 at pool5.
+    sa5 = build("cnn_sa", 3, 7, width=0.125, image_size=128, hidden=32, attention_at="conv5").eval()
+    sa = build("cnn_sa", 3, 7, width=0.125, image_size=128, hidden=32).eval()
+    with torch.no_grad():
+        sa5(x), sa(x)
+    assert sa5.spatial.last_map.shape == (6, 1, 7, 7) and sa.spatial.last_map.shape == (6, 1, 3, 3)
+    st = build("stam", 3, 7, width=0.125, image_size=128, hidden=32, attention_at="conv5").eval()
+    with torch.no_grad():
+        assert st(x).shape == (2, 7)
+    assert st.temporal[0].last_map.shape == (2, 3 * 49, 3 * 49)
+    with pytest.raises(GelsimError, match="attention_at"):
+        build("cnn", 2, 3, width=0.125, image_size=96, attention_at="fc6")
