@@ -292,7 +292,8 @@ def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, over
     cells = [finished[key] for key in todo]
     detected = {s.id: data.onset(s, size, "detected", cfg.train.onset_threshold) for s in test}
     analysis = analyse(cells, models, frames, settings, test_ids, detected)
-    paths = write_tables(out, analysis, models, frames, settings, seeds, onsets, preset)
+    label = str(preset) if base.attention_at == "pool5" else f"{preset}` with `attention_at = {base.attention_at}"
+    paths = write_tables(out, analysis, models, frames, settings, seeds, onsets, label)
     result = {"cells": [{k: v for k, v in c.items() if k not in PER_SEQUENCE_KEYS} for c in cells],
               **analysis, "test_size_warning": warning, "onsets": onsets, "pretrain": pt,
               "seconds": round(time.perf_counter() - t0, 1), **paths}

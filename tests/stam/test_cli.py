@@ -110,6 +110,7 @@ def test_experiment_attention_at_conv5(tiny_experiment, tmp_path, capsys):
     assert next(iter(feats.values())).shape[-2:] == (5, 5)
     cell = out / "cells" / "clean" / "n2" / "cnn_sa" / "seed0"
     assert json.loads((cell / "config.json").read_text())["attention_at"] == "conv5"
+    assert "with `attention_at = conv5`" in (out / "table1.md").read_text()   # the tables say so
     # The same --out at pool5 would mix the two settings' cells: refused in one line, exit 2.
     assert cli.main(args[:-3]) == 2
     err = capsys.readouterr().err.strip().splitlines()   # (the small-split warning, then the error)
