@@ -273,14 +273,14 @@ def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, over
         log(f"pretrained backbone: val frame accuracy {pt['val_acc']:.3f} ({t_pre:.0f} s)")
     base = resolve_train(cfg.train, {**(overrides or {}), "data": str(data_dir), "pretrained": pt["path"],
                                      "preset": cfg.name}, "the experiment's overrides")
+    todo = [(seed, setting, n, m) for seed in range(seeds) for setting in settings for n in frames for m in models]
+    for key in todo:   # before the feature cache: a run that cannot reuse this --out computes nothing
+        _check_cell_options(_cell_dir(out, key), base)
     feats = features_path = None
     if base.freeze_backbone:
         features_path, feats = _feature_cache(out, Path(pt["path"]), data, base.width, size, log,
                                                 base.attention_at)
 
-    todo = [(seed, setting, n, m) for seed in range(seeds) for setting in settings for n in frames for m in models]
-    for key in todo:
-        _check_cell_options(_cell_dir(out, key), base)
     finished = {key: _finished_cell(_cell_dir(out, key), out, test_ids, data, feats, log) for key in todo}
     train_keys = [key for key in todo if finished[key] is None]
     for cell in _cell_results(base, out, train_keys, data, feats, features_path, cluster):
