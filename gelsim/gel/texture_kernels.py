@@ -158,10 +158,25 @@ def moment_sums(b, d: float, fs: int, rows: int, cols: int):
     fs = 1, the half-resolution copy's usual cell at fine pitches. Within a row the cells are summed
     side by side, as in :func:`_add_cells`: 1.5 against 2.3 ms at fs = 1 on 480 x 360, the same sums.)"""
     ny, nx = b.shape
-    out = np.zeros((rows, cols, 5), np.float64)
     h = np.float32(0.5 / d)
     gx = np.empty(nx, np.float32)
     gy = np.empty(nx, np.float32)
+    if fs == 1:
+        # A cell is a pixel: its sums are the pixel's own terms, written once (float32 products, as
+        # the general path's float64 sums of one term round back to). 0.5 ms less per call at 480 x 360.
+        one = np.empty((rows, cols, 5), np.float32)
+        for i in range(ny):
+            _slopes(b, i, h, gx, gy)
+            bi, o = b[i], one[i]
+            for c in range(cols):
+                v, x, y = bi[c], gx[c], gy[c]
+                o[c, 0] = v
+                o[c, 1] = v * v
+                o[c, 2] = x * x
+                o[c, 3] = y * y
+                o[c, 4] = x * y
+        return one
+    out = np.zeros((rows, cols, 5), np.float64)
     acc = np.empty((5, cols), np.float64)
     a0, a1, a2, a3, a4 = acc[0], acc[1], acc[2], acc[3], acc[4]
     for i in range(ny):

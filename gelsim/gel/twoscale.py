@@ -34,6 +34,7 @@ from typing import Callable
 
 import cv2
 import numpy as np
+from numba import njit
 
 from . import texture_kernels as kernels
 from .johnson import segment_arrays
@@ -306,7 +307,8 @@ def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float,
     d_band = 2.0 * dx if half else dx
     tq_s = cv2.resize(tq, (NX // 2, NY // 2), interpolation=cv2.INTER_AREA) if half else tq
     f = tq_s.shape[1] // cs[0]
-    mom = smooth(kernels.moment_sums(tq_s, d_band, f, cs[1], cs[0]) / np.float32(f * f))
+    mom = kernels.moment_sums(tq_s, d_band, f, cs[1], cs[0])
+    mom = smooth(mom if f == 1 else mom / np.float32(f * f))   # (a pixel's cell: its sums are its means)
     # Between one period of the window and the grid's Nyquist wavenumber.
     var, q, aniso, m_tq = kernels.band_cells(mom, np.float32(d_band), q_lo, np.float32(math.pi / d_band))
     # The blur lowered the texture's own band by gain = exp(-(q s)^2 / 2) (s its width, mm): its
@@ -594,34 +596,30 @@ def _crown_pool(region: np.ndarray, f: int, cshape: tuple[int, int]) -> np.ndarr
     resize to ``cshape``, which reads pixel c = floor(i n / m) for cell i (n pixels, m cells along
     an axis): the maximum over pixels [c - f // 2, c - f // 2 + f).
 
-    When the grid divides the region evenly (the usual whole-frame box: 720 x 960 px in 48 x 64
-    blocks of 15) c = f i, the windows tile the axis, and the maxima are two strided reductions
-    (0.2 ms instead of the full-resolution dilation's 0.9 ms, measured on a loaded 2-core machine);
-    other grids take the dilation. Same values either way (a maximum is exact).
+    Computed as those windows' maxima, rows then columns (one pass over the region, where the
+    full-resolution dilation and its read took 0.9 ms per 960x720 frame; the same values, a maximum
+    is exact). When the grid divides the region evenly (the usual whole-frame box: 720 x 960 px in
+    48 x 64 blocks of 15) c = f i, the windows tile the axis, and the maxima are numpy's strided
+    reductions (0.2 ms; SIMD maxima, which numba's loop of :func:`_window_max` does not reach: 0.4 ms).
 
     (Cell i's window then starts f // 2 pixels before its block, half a block off the block the rest
     of the model gives it, and the last f // 2 rows and columns fall in no window. Kept as it was:
     centring it moves the envelope by half a cell, a change to the model's results.)
     """
-    rows = _tiled_window_max(region, f, cshape[0])
+    rows = _axis_window_max(region, f, cshape[0])
     # (The second pass runs on the transposed, contiguous rows: a reduction over strided columns is
     # 3 times slower.)
-    cols = None if rows is None else _tiled_window_max(np.ascontiguousarray(rows.T), f, cshape[1])
-    if cols is None:
-        return cv2.resize(cv2.dilate(region, np.ones((f, f), np.uint8)), (cshape[1], cshape[0]),
-                          interpolation=cv2.INTER_NEAREST)
-    return np.ascontiguousarray(cols.T)
+    return np.ascontiguousarray(_axis_window_max(np.ascontiguousarray(rows.T), f, cshape[1]).T)
 
 
-def _tiled_window_max(a: np.ndarray, f: int, m: int) -> np.ndarray | None:
-    """For each of m cells along the first axis of ``a`` (n rows): the maximum over rows
+def _axis_window_max(a: np.ndarray, f: int, m: int) -> np.ndarray:
+    """For each of m cells along the first axis of ``a`` (2-D, n rows): the maximum over rows
     [c - f // 2, c - f // 2 + f) (clipped to the axis) about the row c that OpenCV's INTER_NEAREST
-    resize from n to m samples, floor(i * (1 / (m / n))) (its double arithmetic); (m, ...) like ``a``.
-    None unless c = f i for every cell (the windows then tile the axis: strided reductions)."""
+    resize from n to m samples reads, floor(i * (1 / (m / n))) (its double arithmetic); (m, k)."""
     n = a.shape[0]
-    c = np.minimum(np.floor(np.arange(m) * (1.0 / (m / n))), n - 1)
+    c = np.minimum(np.floor(np.arange(m) * (1.0 / (m / n))), n - 1).astype(np.int64)
     if not np.array_equal(c, f * np.arange(m)):
-        return None
+        return _window_max(a, c - f // 2, f)
     lo = f - f // 2  # cell 0's window is [-(f // 2), lo); cell i's starts at lo + (i - 1) f
     out = np.empty((m,) + a.shape[1:], a.dtype)
     out[0] = a[:min(lo, n)].max(axis=0)
@@ -630,6 +628,23 @@ def _tiled_window_max(a: np.ndarray, f: int, m: int) -> np.ndarray | None:
         out[1:full + 1] = a[lo:lo + full * f].reshape((full, f) + a.shape[1:]).max(axis=1)
     for i in range(full + 1, m):  # (at most the last cell, clipped at the axis' end)
         out[i] = a[lo + (i - 1) * f:].max(axis=0)
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _window_max(a, starts, f: int):
+    """Row i of the result: the maximum of rows [starts[i], starts[i] + f) of ``a`` (2-D), clipped to
+    its rows (each window holds at least one row)."""
+    n, k = a.shape
+    out = np.empty((starts.size, k), a.dtype)
+    for i in range(starts.size):
+        lo, hi = max(starts[i], 0), min(starts[i] + f, n)
+        o = out[i]
+        o[:] = a[lo]
+        for r in range(lo + 1, hi):
+            ar = a[r]
+            for j in range(k):
+                o[j] = max(o[j], ar[j])
     return out
 
 
