@@ -192,6 +192,7 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
     if envelope_mm is not None and texture_mm is not None and fidelity.imprint_model in ("twoscale", "elastic"):
         env = _envelope_reader(envelope_mm, prot.shape, ws)
     sag = gel_sag_mm(profile, ws)
+    own = work   # the object's own heights, before the dome's sag
     if sag is not None:
         work = work - sag
     dx = profile.image.mm_per_px * profile.shape[1] / ws[1]
@@ -201,7 +202,7 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
         ts = press_twoscale(work, dx, gel, force_n=force_n, depth_mm=depth_mm, support=support,
                             texture_mm=texture_mm, window=window, macro_cells=fidelity.macro_cells,
                             warm=warm.state if (warm is not None and isinstance(warm.state, MacroState)) else None,
-                            sag=sag, envelope=env)
+                            sag=sag, envelope=env, own=own)
         depth_w, mask_w, delta, force, bottomed, state = ts
         if model == "elastic":
             depth_w, mask_w, delta, force, bottomed, state = press_elastic(

@@ -280,6 +280,34 @@ def add_texture(depth, g, field, fs: int, in_macro, touch, mask) -> None:
             oi[j] = mi[j] and ti[j]
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def macro_floor(depth, env, comp, inside, fs: int, oy: int, gamma):
+    """The macro contact's floor under the gel, in place, and the contact itself.
+
+    ``depth`` (mm, float32 (ny, nx), a view of the window) becomes max(depth, env - comp + gamma)
+    where the contact indicator ``inside`` reads at least 1/2, and stays as it is elsewhere;
+    ``env``: the object's crown envelope over the window (mm, float32 (ny, nx)); ``comp`` (the
+    cloth's compression, mm) and ``inside`` are coarse grids of ``fs``-pixel blocks already
+    :func:`widen`-ed and cut to the window's columns, read along rows from row ``oy`` of their
+    ``fs``-fold upsampling (the module's contract); ``gamma``: a constant (mm). Returns the
+    contact, bool (ny, nx). (Each coarse field is blended as (1 - w) a + w b, OpenCV's resize's form.)"""
+    ny, nx = depth.shape
+    ys0, ys1, wys = _rows(oy + ny, fs, comp.shape[0])
+    out = np.empty((ny, nx), np.bool_)
+    zero, half = np.float32(0.0), np.float32(0.5)
+    for i in range(ny):
+        y0, y1, wy = ys0[oy + i], ys1[oy + i], wys[oy + i]
+        wa = np.float32(1.0) - wy
+        c0, c1, k0, k1 = comp[y0], comp[y1], inside[y0], inside[y1]
+        di, ei, oi = depth[i], env[i], out[i]
+        for j in range(nx):
+            m = k0[j] * wa + k1[j] * wy >= half
+            pen = (ei[j] - (c0[j] * wa + c1[j] * wy)) + gamma
+            di[j] = max(di[j], pen if m else zero)
+            oi[j] = m
+    return out
+
+
 def field_at(field: np.ndarray, fs: int, y: int, x: int) -> float:
     """A coarse field's value at pixel (y, x), read as in the module's contract."""
     ys0, ys1, wys = _rows(y + 1, fs, field.shape[0])

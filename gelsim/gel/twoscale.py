@@ -364,7 +364,8 @@ def _bearing_cut(te: np.ndarray, ny: int, nx: int, d_eff: np.ndarray, fs: int, p
 def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, depth_mm: float | None,
                    support: FabricSupport | None, texture_mm: float | None, window: str, macro_cells: int,
                    warm: MacroState | None = None, sag: np.ndarray | None = None,
-                   envelope: Callable[[tuple[int, int, int, int]], np.ndarray] | None = None):
+                   envelope: Callable[[tuple[int, int, int, int]], np.ndarray] | None = None,
+                   own: np.ndarray | None = None):
     """Press ``work`` (protrusion, mm, (ny, nx) at ``dx`` mm/px) into ``gel``.
 
     ``sag``: the gel's dome, mm >= 0 (ny, nx), already subtracted from ``work`` (None: a flat gel);
@@ -373,6 +374,8 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     of a box (r0, r1, c0, c1) of the grid giving its rows r0:r1 and columns c0:c1 (mm, on the object's
     own heights like ``work + sag``: a sequence takes it once on the object and sees it through each
     frame's pose; only the touched window is read), or None to take it here over that window.
+    ``own``: the object's own heights ``work + sag`` when the caller has them (``work`` before the
+    sag was subtracted), so that they need not be rebuilt; None: rebuilt where needed.
 
     Returns (depth mm (ny, nx) float32 before the membrane's blur, contact mask, approach mm,
     force N, bottomed, MacroState).
@@ -394,7 +397,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     for _ in range(2):
         box = bbox(work > np.float32(pmax - reach))
         sol = _solve_macro(work, box, dx, gel, tex if has_texture else None, support, force_n, depth_mm,
-                           macro_cells, warm, sag)
+                           macro_cells, warm, sag, own)
         cb = bbox(sol.p > 0)
         if cb is None or max(cb[1] - cb[0], cb[3] - cb[2]) >= MIN_CONTACT_CELLS or sol.f == 1:
             break
@@ -449,7 +452,8 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         if sag is None:
             env = crown_envelope(work[W0:W1, V0:V1], tex, dx)[w0 - W0:w1 - W0, v0 - V0:v1 - V0]
         else:
-            env = crown_envelope(cv2.add(work[W0:W1, V0:V1], sag[W0:W1, V0:V1]), tex, dx)
+            heights = own[W0:W1, V0:V1] if own is not None else cv2.add(work[W0:W1, V0:V1], sag[W0:W1, V0:V1])
+            env = crown_envelope(heights, tex, dx)
             env = cv2.subtract(env[w0 - W0:w1 - W0, v0 - V0:v1 - V0], sag[w0:w1, v0:v1])
     else:
         env = work[w0:w1, v0:v1]
@@ -467,15 +471,18 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         comp = np.maximum(np.where(p > 0, (hc_of(sol) + delta) - op.gel(p), 0.0), 0.0).astype(np.float32)
         # Carried one cell past the contact cells: the fine patch reaches half a cell beyond them.
         comp = cv2.dilate(comp, np.ones((3, 3), np.uint8))
-        # env - (emax - delta) - comp in one pass over the window.
-        pen_env = cv2.addWeighted(env, 1.0, _window_pressure(comp, f, (r0, c0), win, (ny, nx)), -1.0,
-                                  -float(emax - delta))
     else:
-        pen_env = cv2.subtract(env, float(emax - delta))
-    in_macro = _window_pressure((p > 0).astype(np.float32), f, (r0, c0), win, (ny, nx)) >= 0.5
+        comp = np.zeros(p.shape, np.float32)
+    comp_sub, oy, ox = _window_grid(comp, f, (r0, c0), win, (ny, nx))
+    in_sub, _, _ = _window_grid((p > 0).astype(np.float32), f, (r0, c0), win, (ny, nx))
+    nx_up = comp_sub.shape[1] * f
     # The gel cannot pass through the object: inside the patch it lies at least as deep as the
-    # penetration the gel takes (outside, the elastic displacement alone).
-    cv2.max(dwin, cv2.multiply(pen_env, in_macro.view(np.uint8), dtype=cv2.CV_32F), dwin)
+    # penetration the gel takes, env - (emax - delta) - comp (outside, the elastic displacement
+    # alone). One pass over the window (OpenCV took six: two upsamplings, the sum, the cut, the
+    # product and the maximum).
+    in_macro = kernels.macro_floor(dwin, env, kernels.widen(comp_sub, nx_up)[:, ox:ox + dwin.shape[1]],
+                                   kernels.widen(in_sub, nx_up)[:, ox:ox + dwin.shape[1]], f, oy,
+                                   np.float32(-(emax - delta)))
     if has_texture:
         # The cloth's secant stiffness at the patch's mean pressure, MPa/mm (inf: rigid).
         cloth = 1e-3 * cloth_stiffness(support, p, force, area)
@@ -515,8 +522,10 @@ class _Macro:
     contact_exponent: float | None = None
 
 
-def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cells, warm, sag=None) -> _Macro:
-    """The coarse contact problem over ``box`` = (r0, r1, c0, c1) of ``work`` (``sag``: see press_twoscale)."""
+def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cells, warm, sag=None,
+                 own=None) -> _Macro:
+    """The coarse contact problem over ``box`` = (r0, r1, c0, c1) of ``work`` (``sag``, ``own``: see
+    press_twoscale)."""
     r0, r1, c0, c1 = box
     vmax = gel.max_indentation_mm
     region = work[r0:r1, c0:c1]
@@ -528,7 +537,10 @@ def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cell
         # closing over the texture's scale fills the valleys between crowns.
         # (On the object's own heights, see crown_envelope: the dome's sag added back, and taken off again
         # after the closing at each cell's crown window's centre, pixel f i of the region.)
-        own = region if sag is None else cv2.add(region, sag[r0:r1, c0:c1])
+        if sag is None:
+            own = region
+        else:
+            own = own[r0:r1, c0:c1] if own is not None else cv2.add(region, sag[r0:r1, c0:c1])
         pooled = _crown_pool(own, f, cshape) if f > 1 else own
         env_c = _closing(pooled, coarse_envelope_kernel_cells(tex, dx, f)).astype(np.float64)
         if sag is not None:
@@ -689,11 +701,12 @@ def _beyond(idx: np.ndarray, n: int, edges: tuple[bool, bool]) -> np.ndarray:
     return np.clip(idx + 1, lo, hi)
 
 
-def _window_pressure(p: np.ndarray, f: int, origin, win, frame: tuple[int, int]) -> np.ndarray:
-    """A coarse field (e.g. the pressure, MPa) bilinearly at the fine pixels of ``win`` = (w0, w1,
-    v0, v1), given the coarse grid's origin (fine pixel of its first block) and block size ``f``, in a
-    frame of ``frame`` = (ny, nx) fine pixels: float32 (w1 - w0, v1 - v0), a view into a slightly
-    larger array.
+def _window_grid(p: np.ndarray, f: int, origin, win, frame: tuple[int, int]) -> tuple[np.ndarray, int, int]:
+    """How a coarse field (e.g. the pressure, MPa; the grid's origin is the fine pixel of its first
+    block, ``f`` fine pixels a block) is read bilinearly at the fine pixels of ``win`` = (w0, w1, v0,
+    v1) in a frame of ``frame`` = (ny, nx) fine pixels: ``(sub, oy, ox)``, the coarse cells around the
+    window (float32, one more on each side) whose ``f``-fold bilinear upsampling (OpenCV's resize)
+    has the window's pixel (0, 0) at (oy, ox) (:func:`gelsim.gel.texture_kernels.macro_floor` reads it so).
 
     Beyond the grid the field is zero where the grid's edge lies inside the frame (the macro grid
     covers what the object can reach: its edge cells are out of contact, and the contact's edge falls
@@ -709,10 +722,17 @@ def _window_pressure(p: np.ndarray, f: int, origin, win, frame: tuple[int, int])
     padded[1:-1, 1:-1] = p
     rows = _beyond(np.arange(i0, i1), p.shape[0], _frame_edges(r0, f, p.shape[0], frame[0]))
     cols = _beyond(np.arange(j0, j1), p.shape[1], _frame_edges(c0, f, p.shape[1], frame[1]))
-    sub = padded[rows[:, None], cols[None, :]]
-    up = _upsample(sub, f, ((i1 - i0) * f, (j1 - j0) * f))
-    oy, ox = w0 - (r0 + i0 * f), v0 - (c0 + j0 * f)
-    return up[oy:oy + w1 - w0, ox:ox + v1 - v0]  # (a view: OpenCV reads strided rows, no copy needed)
+    sub = np.ascontiguousarray(padded[rows[:, None], cols[None, :]])
+    return sub, w0 - (r0 + i0 * f), v0 - (c0 + j0 * f)
+
+
+def _window_pressure(p: np.ndarray, f: int, origin, win, frame: tuple[int, int]) -> np.ndarray:
+    """A coarse field read bilinearly at the fine pixels of ``win`` = (w0, w1, v0, v1) as
+    :func:`_window_grid` says (the reading that :func:`gelsim.gel.texture_kernels.macro_floor` makes
+    inside its pass and :func:`_cell_pressure` averages): float32 (w1 - w0, v1 - v0), a view."""
+    sub, oy, ox = _window_grid(p, f, origin, win, frame)
+    up = _upsample(sub, f, (sub.shape[0] * f, sub.shape[1] * f))
+    return up[oy:oy + win[1] - win[0], ox:ox + win[3] - win[2]]
 
 
 def _cell_pressure(p: np.ndarray, f: int, origin, win, cs: tuple[int, int], frame: tuple[int, int]) -> np.ndarray:

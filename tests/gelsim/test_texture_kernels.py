@@ -229,3 +229,34 @@ def test_fine_cells_print_the_kept_fundamental_on_the_crowns():
     ref = kept_relief(s.astype(np.float32), None) * sh
     assert (s >= 1).any() and (s < 1).any()
     assert np.allclose(kept, ref, atol=2e-4)
+
+
+@pytest.mark.parametrize("fs", (1, 2, 5, 15))
+def test_macro_floor_is_the_upsampled_penetration_cut_at_the_contact(fs):
+    # press_twoscale's floor under the gel: the coarse compression and contact indicator read at the
+    # window's pixels as OpenCV's resize reads them, the indicator cut at one half, and the depth
+    # raised to the penetration there (one pass in place of six OpenCV calls).
+    rng = np.random.default_rng(fs)
+    rows, cols = 7, 9
+    comp = (rng.random((rows, cols), dtype=np.float32) * np.float32(0.01))
+    inside = (rng.random((rows, cols)) < 0.6).astype(np.float32)
+    up_shape = (rows * fs, cols * fs)
+    oy, ox = fs // 2 + 1, fs // 3 + 2
+    ny, nx = up_shape[0] - oy - fs, up_shape[1] - ox - fs
+    env = (rng.random((ny, nx), dtype=np.float32) - np.float32(0.5)) * np.float32(0.1)
+    depth = rng.random((ny, nx), dtype=np.float32) * np.float32(0.05)
+    gamma = np.float32(0.03)
+    got_depth = depth.copy()
+    got = K.macro_floor(got_depth, env, K.widen(comp, up_shape[1])[:, ox:ox + nx],
+                        K.widen(inside, up_shape[1])[:, ox:ox + nx], fs, oy, gamma)
+    up_c = _grow(comp, up_shape)[oy:oy + ny, ox:ox + nx]
+    up_i = _grow(inside, up_shape)[oy:oy + ny, ox:ox + nx]
+    want = up_i >= 0.5
+    undecided = np.abs(up_i - 0.5) < 1e-6
+    assert got.shape == want.shape and got.dtype == bool
+    assert np.array_equal(got[~undecided], want[~undecided])
+    assert 0 < want.mean() < 1
+    pen = env.astype(np.float64) - up_c + gamma
+    ref = np.maximum(depth, np.where(got, pen, 0.0))
+    assert np.allclose(got_depth, ref, rtol=0, atol=1e-7)
+    assert np.any(got_depth > depth) and np.all(got_depth >= depth)
