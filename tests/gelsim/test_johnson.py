@@ -108,10 +108,15 @@ def test_wave_follows_johnson(level, kind, wavelength, s):
     check(level, kind, wavelength, s)
 
 
-# Known misses (measured): at L = 2 mm, the gel's own thickness, under light load (s <= 0.25) the
-# two-scale model keeps 20-35% less of the wave than theory and the reference do (its texture
-# scale is capped at the thickness, where the crown envelope and the layer's response overlap).
-KNOWN = {(kind, 2.0, s, lev) for kind in ("1d", "2d") for s in (0.05, 0.2) for lev in ("balanced", "fast")}
+# Known misses (measured, benchmarks/bench_johnson.py: balanced 49/50, fast 48/50): at L = 2 mm, the
+# gel's own thickness, under light load the two-scale model keeps 18-29% less of the wave than theory
+# and the reference do (its texture scale is capped at the thickness, where the crown envelope and the
+# layer's response overlap); and the fast level, at half resolution, works a 0.2 mm 2-D wave on 12 px
+# per period: at s = 0.11 it keeps 0.41 of it against theory's 0.34. Strict: a case that starts to
+# pass is news, and the count in the README changes with it.
+KNOWN = {("1d", 2.0, 0.2, "balanced"): "two-scale model at L = gel thickness, light load",
+         ("1d", 2.0, 0.05, "fast"): "two-scale model at L = gel thickness, light load",
+         ("2d", 0.2, 0.2, "fast"): "fast level: 12 px per period of a 0.2 mm wave at half resolution"}
 
 
 def full_cases():
@@ -120,7 +125,7 @@ def full_cases():
         for kind, wavelength, s in FULL:
             marks = [pytest.mark.slow]
             if (kind, wavelength, s, level) in KNOWN:
-                marks.append(pytest.mark.xfail(reason="two-scale model at L = gel thickness, light load"))
+                marks.append(pytest.mark.xfail(reason=KNOWN[kind, wavelength, s, level], strict=True))
             out.append(pytest.param(level, kind, wavelength, s, marks=marks, id=f"{level}-{kind}-{wavelength}-{s}"))
     return out
 
