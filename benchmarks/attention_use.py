@@ -22,6 +22,7 @@ import torch
 from gelsim.cli import print_json, run_script
 from stam.data import TactileDataset, WindowDataset
 from stam.errors import StamError
+from stam.experiment import feature_cache_path
 from stam.train import model_from_checkpoint
 
 
@@ -54,17 +55,25 @@ def main() -> int:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     out = Path(args.out)
-    feature_files = sorted(out.glob("features-*.pt"), key=lambda p: p.stat().st_mtime)
-    if not feature_files:
-        raise StamError(f"{out} has no features-*.pt; give the --out of a `stam experiment` run whose preset freezes "
-                        "the backbone (the cpu preset)")
     checkpoints = sorted(p for s in args.settings.split(",") for m in ("cnn_sa", "stam")
                          for p in out.glob(f"cells/{s}/n*/{m}/seed*/best.pt"))
     if not checkpoints:
         raise StamError(f"{out} has no finished CNN+SA or STAM cells (cells/SETTING/nN/MODEL/seedS/best.pt); "
                         "run the sweep first")
-    features = torch.load(feature_files[-1], map_location="cpu", weights_only=True)
+    # The features the cells were trained on: the file the sweep keyed by their backbone, input size,
+    # crop and cut (a run directory may hold several, e.g. after a rerun with --attention-at).
     _, cfg, _ = model_from_checkpoint(checkpoints[0])
+    if not cfg.freeze_backbone or not cfg.pretrained:
+        raise StamError(f"{checkpoints[0]} was trained with the backbone unfrozen; give the --out of a `stam "
+                        "experiment` run whose preset freezes it (the cpu preset)")
+    if not Path(cfg.pretrained).is_file():
+        raise StamError(f"the cells' backbone {cfg.pretrained} is missing; run this where the sweep ran, or put "
+                        "the backbone back")
+    feature_file = feature_cache_path(out, Path(cfg.pretrained), cfg.image_size, cfg.crop, cfg.attention_at)
+    if not feature_file.is_file():
+        raise StamError(f"{feature_file} is missing; rerun the `stam experiment` command that made {out} (it "
+                        "recomputes the features and skips finished cells)")
+    features = torch.load(feature_file, map_location="cpu", weights_only=True)
     data = TactileDataset(cfg.data, cfg.cache_dir or None, crop=cfg.crop)
     cells = [cell_use(p, data, features) for p in checkpoints]
     groups: dict = {}
@@ -79,7 +88,7 @@ def main() -> int:
             row["gain"] = statistics.fmean(c["gain"] for c in cs)
         rows.append(row)
     if args.json:
-        print_json({"run": str(out), "features": feature_files[-1].name, "cells": cells, "rows": rows})
+        print_json({"run": str(out), "features": feature_file.name, "cells": cells, "rows": rows})
         return 0
     print(f"{out}: relative change of the features by each module, mean over seeds, on the test windows")
     print("| setting | model | n | spatial | temporal | mean temporal gain |")

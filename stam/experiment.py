@@ -66,13 +66,19 @@ PAPER_TABLES = {
 PAPER_FRAMES = [2, 3, 4, 5, 6, 7]
 
 
+def feature_cache_path(out: Path, backbone_path: Path, image_size: int, crop: float, cut: str = "pool5") -> Path:
+    """Where a sweep into ``out`` keeps the frozen backbone's features: one file per backbone (by the
+    digest of its checkpoint), input size, crop and ``cut`` (where the backbone stops)."""
+    digest = hashlib.sha256(backbone_path.read_bytes()).hexdigest()[:12]
+    tag = "" if cut == "pool5" else f"-{cut}"   # (pool5 files keep the names they had)
+    return out / f"features-{digest}-{image_size}px-crop{crop:g}{tag}.pt"
+
+
 def _feature_cache(out: Path, backbone_path: Path, data: TactileDataset, width: float, image_size: int,
                    log, cut: str = "pool5") -> tuple[Path, dict]:
     """(path, features): the frozen backbone's features of every frame, computed once into ``out``
     (``cut``: where the backbone stops, see stam.backbone.AlexNetFeatures)."""
-    digest = hashlib.sha256(backbone_path.read_bytes()).hexdigest()[:12]
-    tag = "" if cut == "pool5" else f"-{cut}"   # (pool5 files keep the names they had)
-    path = out / f"features-{digest}-{image_size}px-crop{data.crop:g}{tag}.pt"
+    path = feature_cache_path(out, backbone_path, image_size, data.crop, cut)
     if path.is_file():
         return path, torch.load(path, map_location="cpu", weights_only=True)
     t0 = time.perf_counter()

@@ -1,6 +1,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,6 +117,25 @@ def test_experiment_attention_at_conv5(tiny_experiment, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()   # (the small-split warning, then the error)
     assert err[-1].startswith("stam: error:") and "attention_at = 'conv5'" in err[-1]
     assert not any(e.startswith("Traceback") for e in err)
+    # benchmarks/attention_use.py reads the features the cells were trained on, not the newest file:
+    # a pool5 file from the first run, written later, is passed over.
+    import runpy
+
+    decoy = next((tiny_experiment["out"]).glob("features-*px-crop*[0-9].pt"))
+    shutil.copy(decoy, out / decoy.name)
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "attention_use.py"
+    old_argv = sys.argv
+    sys.argv = [str(script), str(out), "--settings", "clean", "--json"]
+    try:
+        with pytest.raises(SystemExit) as done:
+            runpy.run_path(str(script), run_name="__main__")
+    finally:
+        sys.argv = old_argv
+    assert done.value.code in (0, None)
+    use = json.loads(capsys.readouterr().out)
+    assert use["features"] == path.name
+    (row,) = use["rows"]
+    assert row["model"] == "cnn_sa" and row["frames"] == 2 and row["spatial"] > 0
 
 
 def test_markdown_table_layout():
