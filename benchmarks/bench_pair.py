@@ -14,6 +14,11 @@ versions share the memory bus and the last-level cache, as the two workers of a 
 warm-up run first); ``--new DIR``: the tree to time against it (default: this checkout, as it is on disk).
 Arguments after ``--`` go to both benchmarks (e.g. ``-- --fabrics 8``). Needs at least 2 cores and git.
 About 2 minutes per round with the default sample.
+
+Its own spread, from the same commit on both sides (2026-11-27, 2-core VM): runs at 1.005 and 1.007, and
+one at 0.89, where every stage of one side ran 10% slower for the whole run (a neighbour on that core).
+So take the median of 3 or more rounds, and trust a stage's ratio that holds in every run more than the
+whole frame's.
 """
 from __future__ import annotations
 
@@ -86,8 +91,10 @@ def main() -> int:
                        check=True, capture_output=True)
         trees = {"base": base, "new": new}
         quiet = args.json
-        # Warm-up: numba compiles each tree's kernels into that tree's cache on first use.
-        _run_pair(trees, {"base": cores[0], "new": cores[1]}, ["--fabrics", "1", "--sequences-per-fabric", "1"], quiet)
+        # Warm-up: numba compiles each tree's kernels into that tree's cache on first use, and which
+        # kernels run depends on the fabrics: one sequence of each of the sample's fabrics (a
+        # one-sequence warm-up left a kernel to compile in the first timed run: 0.65x on the imprint).
+        _run_pair(trees, {"base": cores[0], "new": cores[1]}, [*bench_args, "--sequences-per-fabric", "1"], quiet)
         runs = []
         for r in range(args.rounds):
             for swap in (False, True):
