@@ -51,7 +51,8 @@ def _run_pair(trees: dict[str, Path], cores: dict[str, int], bench_args: list[st
     for name, p in procs.items():
         stdout, _ = p.communicate()
         if p.returncode != 0:
-            raise GelsimError(f"the benchmark in {trees[name]} failed (exit {p.returncode}); run it there alone to see why")
+            raise GelsimError(f"the benchmark in {trees[name]} failed (exit {p.returncode}); run it there alone "
+                              "to see why")
         out[name] = json.loads(stdout)
     return out
 

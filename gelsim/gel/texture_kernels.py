@@ -1,4 +1,5 @@
-"""Fused per-pixel passes of the two-scale imprint's texture stage (:func:`gelsim.gel.twoscale._texture_depth`).
+"""Fused per-pixel passes of the two-scale imprint: its texture stage (:func:`gelsim.gel.twoscale._texture_depth`),
+and the macro contact's floor under the gel (:func:`macro_floor`), which reads its coarse fields by the same contract.
 
 The texture stage maps the texture ``t`` (full resolution) through fields that live on a coarse
 *statistics grid* of ``fs`` x ``fs``-pixel cells (the texture's local mean, the blur's gain, the
