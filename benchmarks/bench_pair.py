@@ -47,14 +47,12 @@ def _run_pair(trees: dict[str, Path], cores: dict[str, int], bench_args: list[st
         procs[name] = subprocess.Popen(cmd, cwd=tree, env=env, stdout=subprocess.PIPE,
                                        stderr=subprocess.DEVNULL if quiet else None, text=True,
                                        preexec_fn=lambda c=cores[name]: os.sched_setaffinity(0, {c}))
-    out = {}
+    stdouts = {name: p.communicate()[0] for name, p in procs.items()}   # both finished before any is judged
     for name, p in procs.items():
-        stdout, _ = p.communicate()
         if p.returncode != 0:
             raise GelsimError(f"the benchmark in {trees[name]} failed (exit {p.returncode}); run it there alone "
                               "to see why")
-        out[name] = json.loads(stdout)
-    return out
+    return {name: json.loads(out) for name, out in stdouts.items()}
 
 
 def _ms(result: dict) -> float:
