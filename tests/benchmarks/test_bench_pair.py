@@ -26,8 +26,10 @@ def test_bad_input_is_one_line_and_exit_2(args, says):
     assert len(lines) == 1 and says in lines[0] and "Traceback" not in proc.stderr
 
 
-def _worktrees() -> str:
-    return subprocess.run(["git", "-C", str(ROOT), "worktree", "list"], capture_output=True, text=True).stdout
+def _worktrees() -> set[str]:
+    out = subprocess.run(["git", "-C", str(ROOT), "worktree", "list", "--porcelain"], capture_output=True,
+                         text=True).stdout
+    return {line.split(" ", 1)[1] for line in out.splitlines() if line.startswith("worktree ")}
 
 
 @pytest.mark.slow
