@@ -71,10 +71,6 @@ def main() -> int:
     args = ap.parse_args(argv)
     if args.rounds < 1:
         raise GelsimError(f"--rounds {args.rounds}: give 1 or more")
-    cores = sorted(os.sched_getaffinity(0))
-    if len(cores) < 2:
-        raise GelsimError("bench_pair needs 2 cores (one per version); this process may use only "
-                          f"{len(cores)}; time the versions one after the other with bench_generate.py instead")
     new = Path(args.new).resolve()
     if not (new / "benchmarks" / "bench_generate.py").is_file():
         raise GelsimError(f"--new {args.new} has no benchmarks/bench_generate.py; give a gelsim checkout")
@@ -83,6 +79,13 @@ def main() -> int:
     if rev.returncode != 0:
         raise GelsimError(f"--base {args.base} is not a commit of this repository; give a hash, tag or branch")
     commit = rev.stdout.strip()
+    if not hasattr(os, "sched_setaffinity"):
+        raise GelsimError("bench_pair pins each version to a core with Linux's CPU affinity, which this system "
+                          "lacks; time the versions one after the other with bench_generate.py instead")
+    cores = sorted(os.sched_getaffinity(0))
+    if len(cores) < 2:
+        raise GelsimError("bench_pair needs 2 cores (one per version); this process may use only "
+                          f"{len(cores)}; time the versions one after the other with bench_generate.py instead")
     tmp = Path(tempfile.mkdtemp(prefix="gelsim-pair-"))
     base = tmp / "base"
     try:

@@ -33,7 +33,8 @@ def _worktrees() -> set[str]:
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs 2 cores")
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs Linux's CPU affinity and 2 cores")
 def test_a_version_against_itself_and_the_worktree_is_removed():
     """The same commit on both sides (one fabric, one sequence: about a minute): every run gives a ratio
     per stage, the summary is their median, and the temporary worktree is gone afterwards."""
