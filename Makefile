@@ -59,8 +59,9 @@ ray: $(STAMP)
 	$(PY) -m pip install -q -e ".[ray]"
 	$(PY) -m pip install -q --no-deps "$(PYOPENGL_SPEC)"
 
+# A demo made by older code (after a `git pull`) is renamed to $(DEMO_OUT).stale-N, not deleted.
 demo: $(STAMP)
-	$(VENV)/bin/gelsim generate --preset quick --out $(DEMO_OUT)
+	$(VENV)/bin/gelsim generate --preset quick --replace-stale --out $(DEMO_OUT)
 	@echo "demo dataset: $(DEMO_OUT) (manifest: $(DEMO_OUT)/manifest.json, previews: $(DEMO_OUT)/previews/)"
 
 test: $(STAMP)

@@ -282,29 +282,76 @@ def load_manifest(root: str | Path) -> dict:
     return m
 
 
-def _check_out_dir(root: Path, options: dict) -> dict | None:
-    """Existing manifest if ``root`` holds the same dataset; error if it holds anything else."""
+class StaleOutput(GelsimError):
+    """``--out`` holds a gelsim dataset that this code cannot resume: made with other options, library
+    versions or gelsim code, so the same seed would give other sequences. :func:`set_aside_stale` moves
+    such a dataset out of the way."""
+
+
+def check_out_dir(root: str | Path, options: dict) -> dict | None:
+    """What ``root`` holds, read only: its manifest if it is the dataset ``options`` describe (to resume,
+    or complete), None if it is new or empty. Raises :class:`StaleOutput` for a gelsim dataset made
+    otherwise, and GelsimError for a file or for files that are not a dataset."""
+    root = Path(root)
     if root.exists() and not root.is_dir():
         raise GelsimError(f"--out {root} is a file; give a directory")
-    if root.exists() and any(root.iterdir()):
-        if not (root / schema.MANIFEST).exists():
-            raise GelsimError(f"--out {root} holds files that are not a gelsim dataset; give an empty or new directory")
-        m = load_manifest(root)
-        # An option added after the dataset was made takes its default there.
-        made = {**GenerateConfig().options(), **m.get("options", {})}
-        if made != options:
-            diff = [k for k in options if made.get(k) != options[k]]
-            raise GelsimError(f"--out {root} holds a dataset made with other options ({', '.join(diff)}); "
-                              "rerun with the same options to resume, or choose another --out")
-        diff = _library_difference(m.get("libraries"))
-        if diff:
-            raise GelsimError(f"--out {root} was made with other library versions ({diff}), which give other bytes "
-                              "from the same seed; resume it where those are installed, or choose another --out")
-        if _other_source(m):
-            fix = ("delete it to make it anew with this code" if m.get("complete")
-                   else "finish it with the code that began it")
-            raise GelsimError(f"--out {root} was made by other gelsim code or assets (its manifest's source digest "
-                              f"differs), which give other sequences from the same seed; {fix}, or choose another --out")
+    if not (root.exists() and any(root.iterdir())):
+        return None
+    if not (root / schema.MANIFEST).exists():
+        raise GelsimError(f"--out {root} holds files that are not a gelsim dataset; give an empty or new directory")
+    m = load_manifest(root)
+    # An option added after the dataset was made takes its default there.
+    made = {**GenerateConfig().options(), **m.get("options", {})}
+    if made != options:
+        diff = [k for k in options if made.get(k) != options[k]]
+        raise StaleOutput(f"--out {root} holds a dataset made with other options ({', '.join(diff)}); "
+                          "rerun with the same options to resume, choose another --out, or add --replace-stale to set it "
+                          "aside and start anew")
+    diff = _library_difference(m.get("libraries"))
+    if diff:
+        raise StaleOutput(f"--out {root} was made with other library versions ({diff}), which give other bytes "
+                          "from the same seed; resume it where those are installed, choose another --out, or add "
+                          "--replace-stale to set it aside and start anew")
+    if _other_source(m):
+        fix = "" if m.get("complete") else "finish it with the code that began it, "
+        raise StaleOutput(f"--out {root} was made by other gelsim code or assets (its manifest's source digest "
+                          f"differs), which give other sequences from the same seed; {fix}choose another --out, or "
+                          "add --replace-stale to set it aside and make it anew with this code")
+    return m
+
+
+def stale_place(root: str | Path) -> Path:
+    """Where :func:`set_aside_stale` would move ``root``: ``ROOT.stale-N`` beside it, the first N free."""
+    root = Path(root)
+    n = 1
+    while root.with_name(f"{root.name}.stale-{n}").exists():
+        n += 1
+    return root.with_name(f"{root.name}.stale-{n}")
+
+
+def set_aside_stale(root: str | Path, config: GenerateConfig) -> Path | None:
+    """If ``root`` holds a gelsim dataset that ``config`` cannot resume (:class:`StaleOutput`), rename it
+    to :func:`stale_place` (one rename in the same directory: nothing is copied or deleted) and return
+    the new path; None if ``root`` is new, empty or resumable. Anything that is not a gelsim dataset is
+    left where it is (GelsimError)."""
+    root = Path(root)
+    try:
+        check_out_dir(root, config.options())
+        return None
+    except StaleOutput:
+        dest = stale_place(root)
+        try:
+            os.rename(root, dest)
+        except OSError as e:
+            raise GelsimError(f"could not move the stale dataset {root} to {dest} ({e.strerror}); "
+                              "move or delete it yourself, or choose another --out") from None
+        return dest
+
+
+def _prepare_out_dir(root: Path, options: dict) -> dict | None:
+    """:func:`check_out_dir`, then, for a new dataset, create ``root`` and check it is writable."""
+    m = check_out_dir(root, options)
+    if m is not None:
         return m
     # Writability is checked by creating the directory (nothing else is touched).
     try:
@@ -315,6 +362,20 @@ def _check_out_dir(root: Path, options: dict) -> dict | None:
     except OSError as e:
         raise GelsimError(f"--out {root} is not writable ({e.strerror}); choose a writable directory") from None
     return None
+
+
+def resume_state(root: str | Path, config: GenerateConfig, specs: list[SequenceSpec] | None = None) -> dict:
+    """What :func:`generate` would do with ``root``, read only: ``{"state": "new" | "resume" | "complete",
+    "done": finished sequences, "total": planned, "frames_to_go": frames of the unfinished ones}``.
+    Raises as :func:`check_out_dir` does."""
+    from .fabrics import load_catalog
+
+    specs = specs if specs is not None else plan(config, len(load_catalog()))
+    m = check_out_dir(root, config.options())
+    done = {} if m is None else _load_records(Path(root), specs)
+    state = "new" if m is None else ("complete" if len(done) == len(specs) else "resume")
+    return {"state": state, "done": len(done), "total": len(specs),
+            "frames_to_go": sum(s.num_frames for s in specs if s.id not in done)}
 
 
 def estimate_bytes(specs: list[SequenceSpec], fmt: str, width: int, height: int) -> int:
@@ -680,7 +741,7 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
     with connection as cluster:  # joined before anything is written: a bad address leaves no trace
         if cluster is not None:
             root = Path(os.path.abspath(root))  # Ray's workers do not start in this directory
-        _check_out_dir(root, config.options())
+        _prepare_out_dir(root, config.options())
         if cluster is not None:
             from .cluster import check_shared_dir
 

@@ -67,7 +67,14 @@ def register(sub) -> None:
                    help="draw K sensor units from the profile's [unit_variation] (LEDs, gel, markers, camera; "
                         "ranges and sources in the profile) and give each sequence one in turn; the manifest "
                         "records every unit's parameters [default: 0, the profile itself]")
-    p.add_argument("--dry-run", action="store_true", help="print the plan with estimated time and disk size; write nothing")
+    p.add_argument("--replace-stale", action="store_true",
+                   help="if --out holds a gelsim dataset this code cannot resume (made by other gelsim code, "
+                        "options or library versions), rename it to DIR.stale-N beside it and start anew; "
+                        "nothing is deleted, and a directory that is not a gelsim dataset is never moved "
+                        "(`make demo` uses this, so it works again after `git pull`)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="print the plan with estimated time and disk size, and what would happen to --out (new, "
+                        "resumed, complete, or refused); write nothing")
     p.add_argument("--no-previews", action="store_true", help="skip the preview images")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout (no progress bar)")
     p.set_defaults(handler=run_generate)
@@ -130,6 +137,10 @@ def run_generate(args: argparse.Namespace) -> int:
         from ..cluster import import_ray
 
         import_ray()  # not installed: one line, before anything is written
+    if args.replace_stale:
+        moved = dataset.set_aside_stale(args.out, cfg)
+        if moved is not None:
+            print(f"{args.out} held a dataset this code cannot resume: moved to {moved}", file=sys.stderr)
     bar = None
     frames_done = [0]
     t0 = time.perf_counter()
@@ -183,15 +194,24 @@ def _dry_run(cfg, args) -> int:
     dataset.check_render(cfg, get_fidelity(cfg.fidelity))  # and a device this machine lacks
     specs = dataset.plan(cfg, len(catalog))
     frames = sum(s.num_frames for s in specs)
+    try:
+        out_state = dataset.resume_state(args.out, cfg, specs)
+    except dataset.StaleOutput:
+        if not args.replace_stale:
+            raise  # what the run itself would say: one line, exit 2
+        out_state = {"state": "replace", "moved_to": str(dataset.stale_place(args.out)), "done": 0,
+                     "total": len(specs), "frames_to_go": frames}
+    # The estimates are for what this run would do: the whole plan, less what a resumed dataset holds.
+    to_go = out_state["frames_to_go"]
     w, h = profile.image.width_px, profile.image.height_px
-    nbytes = dataset.estimate_bytes(specs, cfg.format, w, h)
+    nbytes = dataset.estimate_bytes(specs, cfg.format, w, h) * to_go // max(frames, 1)
     fid = get_fidelity(cfg.fidelity)
     workers = args.workers or os.cpu_count() or 1
-    est_s = fid.estimate_seconds(frames, w, h, workers)
+    est_s = fid.estimate_seconds(to_go, w, h, workers) if to_go else 0.0
     counts = {a: sum(1 for s in specs if s.action == a) for a in schema.ACTIONS}
     splits = {k: sum(1 for s in specs if s.split == k) for k in schema.SPLITS}
-    plan = {"out": str(args.out), "options": cfg.options(), "sequences": len(specs), "frames": frames,
-            "actions": counts, "splits": splits, "resolution": [w, h], "workers": workers,
+    plan = {"out": str(args.out), "out_state": out_state, "options": cfg.options(), "sequences": len(specs),
+            "frames": frames, "actions": counts, "splits": splits, "resolution": [w, h], "workers": workers,
             "estimated_seconds": round(est_s, 1), "estimated_bytes": nbytes}
     if cfg.units:
         from ..units import variation_ranges
@@ -203,9 +223,21 @@ def _dry_run(cfg, args) -> int:
     else:
         print(f"plan: {len(specs)} sequences, {frames} frames at {w}x{h}, fidelity {cfg.fidelity}, format {cfg.format}")
         print(f"  actions {counts}; splits {splits}")
-        print(f"  estimated time {est_s / 60:.1f} min on {workers} workers; disk about {nbytes / 1e9:.2f} GB")
+        left = f" for the {to_go} frames to go" if out_state["done"] else ""
+        print(f"  estimated time{left} {est_s / 60:.1f} min on {workers} workers; disk about {nbytes / 1e9:.2f} GB")
+        print(f"  --out {args.out}: {_describe_out(out_state)}")
         print("  (dry run: nothing written)")
     return 0
+
+
+def _describe_out(st: dict) -> str:
+    if st["state"] == "new":
+        return "new dataset"
+    if st["state"] == "replace":
+        return f"holds a dataset this code cannot resume; --replace-stale would move it to {st['moved_to']}"
+    if st["state"] == "complete":
+        return f"complete ({st['total']} sequences): nothing to do"
+    return f"resumes: {st['done']} of {st['total']} sequences done, {st['total'] - st['done']} to go"
 
 
 def run_verify(args: argparse.Namespace) -> int:

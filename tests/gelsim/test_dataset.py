@@ -306,7 +306,7 @@ def test_resume_refuses_a_dataset_begun_by_other_code(tiny, tmp_path, capsys):
 
     assert load_manifest(tiny)["source"] == source_digest() and len(source_digest()) == 64
     resumed = _check_resume_refused(tiny, tmp_path, capsys, "source", "0" * 64,
-                                    ("delete it to make it anew", "other gelsim code"))
+                                    ("--replace-stale", "other gelsim code"))
     assert resumed["source"] == source_digest()
     # a run interrupted under other code is to be finished by that code
     m = {**resumed, "source": "0" * 64, "complete": False}
@@ -314,6 +314,90 @@ def test_resume_refuses_a_dataset_begun_by_other_code(tiny, tmp_path, capsys):
     capsys.readouterr()
     assert _gen(tmp_path / "other") == 2
     assert "finish it with the code that began it" in capsys.readouterr().err
+
+
+def dataset_bytes(root: Path) -> int:
+    return sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
+
+
+def test_dry_run_says_what_happens_to_out(tiny, tmp_path, capsys):
+    """The dry run reads --out as the run would: new, complete, resumed (with the time for the frames to
+    go), or refused with the run's own line (exit 2); with --replace-stale it names where the stale
+    dataset would go. Nothing is written or moved."""
+    import shutil
+
+    def dry(out, *extra):
+        capsys.readouterr()
+        rc = _gen(out, "--dry-run", "--json", *extra)
+        cap = capsys.readouterr()
+        return rc, (json.loads(cap.out) if rc == 0 else cap.err)
+
+    rc, plan = dry(tmp_path / "new")
+    assert rc == 0 and plan["out_state"] == {"state": "new", "done": 0, "total": 6, "frames_to_go": plan["frames"]}
+    rc, plan = dry(tiny)
+    assert rc == 0 and plan["out_state"]["state"] == "complete" and plan["out_state"]["frames_to_go"] == 0
+    assert plan["estimated_seconds"] == 0 and plan["estimated_bytes"] == 0
+    out = tmp_path / "half"
+    shutil.copytree(tiny, out)
+    m = load_manifest(out)
+    gone = m["sequences"][0]
+    (out / gone["video"]).unlink()                                  # one sequence to redo
+    rc, plan = dry(out)
+    st = plan["out_state"]
+    assert rc == 0 and st["state"] == "resume" and (st["done"], st["total"]) == (5, 6)
+    assert st["frames_to_go"] == gone["num_frames"]
+    from gelsim.fidelity import get_fidelity
+
+    w, h = plan["resolution"]
+    assert plan["estimated_seconds"] == round(get_fidelity("fast").estimate_seconds(st["frames_to_go"], w, h, 1), 1)
+    assert 0 < plan["estimated_bytes"] < dataset_bytes(tiny)
+    m["source"] = "0" * 64
+    (out / "manifest.json").write_text(json.dumps(m))
+    before = sorted(p.name for p in out.iterdir())
+    rc, err = dry(out)
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and "other gelsim code" in err
+    rc, plan = dry(out, "--replace-stale")
+    assert rc == 0 and plan["out_state"]["state"] == "replace"
+    assert plan["out_state"]["moved_to"] == str(out.with_name("half.stale-1"))
+    assert sorted(p.name for p in out.iterdir()) == before and not out.with_name("half.stale-1").exists()
+
+
+def test_replace_stale_sets_a_stale_dataset_aside_and_nothing_else(tiny, tmp_path, capsys):
+    """--replace-stale renames a dataset made by other code (or options) to DIR.stale-N, the first free
+    N, keeping every file, and makes the dataset anew; a resumable dataset is resumed in place, and a
+    directory that is not a gelsim dataset is refused and left alone (exit 2)."""
+    import shutil
+
+    from gelsim import dataset
+
+    out = tmp_path / "ds"
+    shutil.copytree(tiny, out)
+    m = load_manifest(out)
+    # resumable: nothing moves
+    assert _gen(out, "--replace-stale") == 0 and not out.with_name("ds.stale-1").exists()
+    # made by other code: renamed whole, twice to two places
+    for n in (1, 2):
+        m["source"] = "0" * 64
+        (out / "manifest.json").write_text(json.dumps(m))
+        files = sorted(str(p.relative_to(out)) for p in out.rglob("*"))
+        capsys.readouterr()
+        assert _gen(out, "--replace-stale") == 0
+        assert f"moved to {out.with_name(f'ds.stale-{n}')}" in capsys.readouterr().err
+        old = out.with_name(f"ds.stale-{n}")
+        assert sorted(str(p.relative_to(old)) for p in old.rglob("*")) == files
+        assert json.loads((old / "manifest.json").read_text())["source"] == "0" * 64
+        assert _contents(out) == _contents(tiny)                    # made anew: the same dataset
+    # made with other options: also stale
+    assert dataset.set_aside_stale(out, dataset.GenerateConfig(fabrics=1)) == out.with_name("ds.stale-3")
+    assert not out.exists()
+    # not a dataset: never moved
+    junk = tmp_path / "junk"
+    junk.mkdir()
+    (junk / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert _gen(junk, "--replace-stale") == 2
+    assert "not a gelsim dataset" in capsys.readouterr().err and (junk / "notes.txt").read_text() == "mine"
+    assert not junk.with_name("junk.stale-1").exists()
 
 
 def _frames(root: Path, seq: dict) -> np.ndarray:
