@@ -6,7 +6,8 @@
 
 Sweeps (gelsim.bench.SWEEPS) from the balanced level, one knob at a time, on the bench's scenes (a
 pressed sphere; a fine weave, a coarse knit and a pile fabric under press, slip and twist): the
-physics timestep (force error), imprint scale, the two-scale model's macro_cells and the imprint
+physics timestep (force error), imprint scale, the two-scale model's macro_cells (without the
+valley rule) and macro_cells_per_valley (its refinement for corduroys), and the imprint
 model (pyramid, twoscale, elastic: texture kept in the fabric's pitch band, contact area, markers in
 the contact, image L1), supersampling and render backend (image texture, image L1) and the marker
 model (marker error). The imprint and marker knobs are swept again at ``--hires`` (the ViTac
@@ -37,7 +38,7 @@ from gelsim.atomic import atomic_write_bytes, atomic_write_json, atomic_write_te
 from gelsim.cli import run_script  # noqa: E402
 from gelsim.dataset import parse_resolution  # noqa: E402
 
-HIRES_KNOBS = ("imprint_scale", "macro_cells", "imprint_model", "marker_model")
+HIRES_KNOBS = ("imprint_scale", "macro_cells", "macro_cells_per_valley", "imprint_model", "marker_model")
 
 
 def _split(text: str) -> tuple[str, ...]:

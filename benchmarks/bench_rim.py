@@ -45,7 +45,7 @@ def main() -> int:
     from gelsim.fabrics import load_catalog
     from gelsim.gel import press
     from gelsim.runtime import configure_worker
-    from gelsim.scene import as_object, field_heights
+    from gelsim.scene import as_object, field_heights, press_properties
     from gelsim.sensor import load_profile
     from gelsim.texture import band_for, band_rms, contact_region, pitches_mm
 
@@ -63,7 +63,7 @@ def main() -> int:
         fab = catalog[fid]
         obj = as_object(fab)
         heights = field_heights(obj, profile, seed=0)
-        kw = dict(force_n=args.force_n, support=obj.support(), texture_mm=obj.texture_mm)
+        kw = dict(force_n=args.force_n, **press_properties(obj))
         model = press(heights, profile, args.level, **kw)
         ref = press(heights, profile, "reference", **kw)
         band = band_for(fab, profile.field_mm[0])

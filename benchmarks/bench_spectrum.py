@@ -71,7 +71,7 @@ def main() -> int:
     from gelsim.fabrics import load_catalog
     from gelsim.gel import FabricSupport, press
     from gelsim.runtime import configure_worker
-    from gelsim.scene import as_object, field_heights
+    from gelsim.scene import as_object, field_heights, press_properties
     from gelsim.sensor import load_profile
 
     configure_worker()
@@ -86,7 +86,7 @@ def main() -> int:
     elif args.support == "yarns" and support is not None:
         support = FabricSupport(support.thickness_mm, 0.0, support.surface_modulus_mpa)
     heights = field_heights(obj, profile, seed=0)
-    kw = dict(force_n=args.force_n, support=support, texture_mm=obj.texture_mm)
+    kw = dict(force_n=args.force_n, **{**press_properties(obj), "support": support})
     model = press(heights, profile, args.level, **kw).depth_mm
     ref = press(heights, profile, "reference", **kw).depth_mm
     rows = transfer_by_bin(model, ref, heights, profile.image.mm_per_px)

@@ -62,6 +62,7 @@ from .atomic import atomic_write_json, atomic_write_npz, atomic_write_text, writ
 from .contact import ContactFrames, simulate
 from .errors import GelsimError
 from .runtime import configure_worker
+from .scene import press_properties
 from .fidelity import Fidelity, fidelity_levels, get_fidelity
 from .metrics import psnr, ssim_map
 from .motion import ACTIONS, Motion, sample_motion
@@ -1031,16 +1032,21 @@ IMPRINT_METRICS = ("texture_err", "image_texture_err", "contact_area_err", "mark
 # Each sweep: knob, values from cheapest to dearest (the last is the converged value the others are
 # compared with), the stage whose time is its cost, and the errors it reports (the first is plotted
 # first). macro_cells: the two-scale model's coarse grid, 64 cells across the touched region by
-# default (gelsim.fidelity); imprint_model: the old pyramid, the two-scale model, the elastic reference.
+# default (gelsim.fidelity), swept without the valley rule (SWEEP_HOLD), which
+# macro_cells_per_valley sweeps on its own (it refines the grid only for objects with narrow envelope
+# valleys: the corduroys); imprint_model: the old pyramid, the two-scale model, the elastic reference.
 SWEEPS = (
     ("physics_dt_s", (0.004, 0.002, 0.001, 0.0005, 0.00025, 0.000125), "physics", ("force_err_n",)),
     ("imprint_scale", (0.25, 0.5, 0.75, 1.0), "imprint", IMPRINT_METRICS),
     ("macro_cells", (16, 32, 64, 128, 256), "imprint", IMPRINT_METRICS),
+    ("macro_cells_per_valley", (0.0, 1.0, 2.0, 3.0, 4.0), "imprint", IMPRINT_METRICS),
     ("imprint_model", ("pyramid", "twoscale", "elastic"), "imprint", IMPRINT_METRICS),
     ("supersample", (1, 2, 3, 4), "optics", ("image_texture_err", "image_l1")),
     ("marker_model", ("gaussian", "elastic"), "markers", ("marker_err_contact_mm", "marker_err_mm")),
     ("render_backend", ("fast", "pyrender"), "optics", ("image_texture_err", "image_l1")),
 )
+# Knobs held at another value while a sweep runs: the grid alone, not its refinement for narrow valleys.
+SWEEP_HOLD = {"macro_cells": {"macro_cells_per_valley": 0.0}}
 
 
 def run_convergence(config: BenchConfig = BenchConfig(), base: str = "balanced", knobs: tuple[str, ...] = (),
@@ -1074,7 +1080,8 @@ def run_convergence(config: BenchConfig = BenchConfig(), base: str = "balanced",
     for knob, values, stage, metrics in SWEEPS:
         if knobs and knob not in knobs:
             continue
-        fids = [dataclasses.replace(base_fid, name=f"{knob}={v}", **{knob: v}) for v in values]
+        fids = [dataclasses.replace(base_fid, name=f"{knob}={v}", **{**SWEEP_HOLD.get(knob, {}), knob: v})
+                for v in values]
         finest = fids[-1]
         yard: dict[str, tuple[LevelRun, SceneTexture | None]] = {}
         points = []
@@ -1253,7 +1260,7 @@ def run_pitch_study(resolution: tuple[int, int], *, fabrics: tuple[int, ...] = P
             fab = catalog[fid]
             prot = heightfield(fab, x0_mm=-(w - 1) / 2 * mm, y0_mm=-(h - 1) / 2 * mm, width_px=w, height_px=h,
                                mm_per_px=mm, seed=seed, rotation_deg=fab.orientation_deg)
-            kw = dict(force_n=force_n, support=fab.support(), texture_mm=fab.texture_mm)
+            kw = dict(force_n=force_n, **press_properties(fab))
             key = cache.key({"pitch": fid, "force_n": force_n, "resolution": list(resolution), "seed": seed,
                              "profile": hashlib.sha256(repr(prof).encode()).hexdigest(),
                              "fidelity": {**dataclasses.asdict(elastic), "name": ""}})

@@ -25,6 +25,10 @@ class Fidelity:
     supersample: int = param(lo=1, hi=4, doc="render at this many times the resolution, then average down")
     macro_cells: int = param(lo=8, hi=1024, doc="two-scale model: cells across the touched region in its "
                                                    "macro (contact-scale) elastic solve")
+    macro_cells_per_valley: float = param(0.0, lo=0.0, hi=16.0,
+                                          doc="two-scale model: at least this many macro cells across the object's "
+                                              "narrowest envelope valley (a corduroy's gap between wales; finer "
+                                              "cells than macro_cells gives only there); 0 = off")
     est_ms_per_frame_vga: float = param(50.0, lo=0.0, hi=1e6,
                                         doc="measured end-to-end ms per 640x480 frame on one core (for --dry-run estimates)")
     est_ms_per_frame_960: float = param(100.0, lo=0.0, hi=1e6,

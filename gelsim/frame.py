@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import GelsimError
 from .fidelity import Fidelity, get_fidelity
-from .scene import Cylinder, FabricObject, Mesh, Sphere, TouchedObject, as_object, field_heights
+from .scene import Cylinder, FabricObject, Mesh, Sphere, TouchedObject, as_object, field_heights, press_properties
 from .sensor import SensorProfile, load_profile
 
 #: Force used when neither a force nor a depth is given: a light press by hand (the ViTac data were
@@ -44,8 +44,7 @@ def press_object(obj: TouchedObject, profile: SensorProfile, fidelity: str | Fid
 
     obj = as_object(obj)
     prot = field_heights(obj, profile, seed=seed) if protrusion_mm is None else protrusion_mm
-    return press(prot, profile, get_fidelity(fidelity), force_n=force_n, depth_mm=depth_mm,
-                 support=obj.support(), texture_mm=obj.texture_mm)
+    return press(prot, profile, get_fidelity(fidelity), force_n=force_n, depth_mm=depth_mm, **press_properties(obj))
 
 
 def describe(obj: TouchedObject) -> dict:

@@ -10,7 +10,10 @@ thing under the sensor:
 * ``support()``: its compliance under a pressing gel (a fabric's cloth compression and yarn
   flattening, :class:`gelsim.gel.FabricSupport`), or None for a rigid object;
 * ``texture_mm``: the scale of its texture, over which the imprint separates crowns from valleys
-  (None: a smooth object).
+  (None: a smooth object);
+* ``macro_valley_mm`` (optional; None if absent): the width of the narrowest valley that its crown
+  envelope keeps, mm (a corduroy's gap between wales), which the imprint's contact-scale grid must
+  resolve (:func:`macro_valley_mm`).
 
 :func:`travel_patch` builds its heights over a motion's travel for the physics (:func:`physics_surface`,
 a :class:`gelsim.contact.Surface`) and for the images (a :class:`HeightPatch` the sequence samples per
@@ -80,6 +83,10 @@ class FabricObject:
     def texture_mm(self) -> float:
         return self.fabric.texture_mm
 
+    @property
+    def macro_valley_mm(self) -> float | None:
+        return self.fabric.macro_valley_mm
+
     def support(self):
         return self.fabric.support()
 
@@ -105,9 +112,23 @@ def _grid(x0_mm, y0_mm, width_px, height_px, mm_per_px, center_mm, rotation_deg)
 class _Rigid:
     """A smooth rigid object: no compliance of its own (``support()`` is None), no texture scale."""
     texture_mm = None
+    macro_valley_mm = None
 
     def support(self):
         return None
+
+
+def macro_valley_mm(obj) -> float | None:
+    """``obj.macro_valley_mm`` (mm), or None for an object that does not give one (it is optional in
+    :class:`TouchedObject`: an object made before it existed still works)."""
+    v = getattr(obj, "macro_valley_mm", None)
+    return None if v is None else float(v)
+
+
+def press_properties(obj) -> dict:
+    """What :func:`gelsim.gel.press` takes of the object (or a bare catalog Fabric) as keywords: its
+    ``support`` (compliance), ``texture_mm`` and ``valley_mm`` (:func:`macro_valley_mm`)."""
+    return {"support": obj.support(), "texture_mm": obj.texture_mm, "valley_mm": macro_valley_mm(obj)}
 
 
 def positive_mm(name: str, value) -> float:

@@ -47,7 +47,7 @@ from .gel.twoscale import crown_envelope, texture_scale_mm
 from .markers import displace, marker_grid, rest_markers
 from .motion import Motion
 from .optics import Renderer
-from .scene import PHYSICS_MM_PER_PX, HeightPatch, TouchedObject, as_object, physics_surface, travel_patch  # noqa: F401
+from .scene import PHYSICS_MM_PER_PX, HeightPatch, TouchedObject, as_object, physics_surface, press_properties, travel_patch  # noqa: F401
 from .sensor import SensorProfile
 
 # Shear and twist terms that move no marker by more than this are skipped, px. A marker edge
@@ -164,7 +164,7 @@ def render_sequence(obj: TouchedObject, motion: Motion, profile: SensorProfile, 
         t = timer.add("fabric", t)
         contact = simulate(motion, surface, profile, fidelity)
         t = timer.add("physics", t)
-    support, texture_mm = obj.support(), obj.texture_mm
+    props = press_properties(obj)
     # The image-resolution patch is the costliest fabric step: built only if some frame presses.
     touches = bool(np.any(contact.in_contact & (contact.normal_force_n > 0)))
     if patch is None and want_imprint and (touches or not shortcuts):
@@ -198,8 +198,8 @@ def render_sequence(obj: TouchedObject, motion: Motion, profile: SensorProfile, 
             prot = patch.sample(*pose)
             env = None if envelope is None else functools.partial(envelope.sample, *pose)
             t = timer.add("fabric", t)
-            imprint = press(prot, profile, fidelity, force_n=force if touching else 0.0, support=support,
-                            texture_mm=texture_mm, window=window, warm=prev, envelope_mm=env)
+            imprint = press(prot, profile, fidelity, force_n=force if touching else 0.0, window=window, warm=prev,
+                            envelope_mm=env, **props)
             prev = imprint if touching else None
             indentation[i] = imprint.indentation_mm
             area[i] = imprint.contact_area_mm2

@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from .errors import GelsimError
+from .scene import press_properties
 
 # A Gaussian low-pass of width sigma passes half the power at f = sqrt(ln 2 / 2) / (pi sigma).
 _HALF_POWER = math.sqrt(math.log(2.0) / 2.0) / math.pi
@@ -186,7 +187,7 @@ def texture_budget(fabric, force_n: float, profile, fidelity, *, seed: int = 0, 
                        mm_per_px=mm, seed=seed, rotation_deg=fabric.orientation_deg)
     times["fabric"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    im = press(prot, profile, fidelity, force_n=force_n, support=fabric.support(), texture_mm=fabric.texture_mm)
+    im = press(prot, profile, fidelity, force_n=force_n, **press_properties(fabric))
     times["imprint"] = time.perf_counter() - t0
     band = band_for(fabric, min(profile.field_mm))
     _, coarse = pitches_mm(fabric)

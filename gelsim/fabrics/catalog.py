@@ -167,6 +167,17 @@ class Fabric:
             scale *= self.basket_group
         return float(scale)
 
+    @property
+    def macro_valley_mm(self) -> float | None:
+        """The narrowest valley the fabric's crown envelope keeps, mm: a corduroy's gap between wales
+        (wale spacing less ridge width), which the closing over its tuft rows leaves open and the
+        imprint's contact-scale grid must resolve (:data:`gelsim.gel.twoscale.MACRO_CELLS_PER_VALLEY`).
+        None for the other families: their envelope's valleys are wider than ``texture_mm``, which the
+        grid resolves at every size it takes (docs/fidelity.md)."""
+        if self.family == "corduroy" and self.warp_pitch_mm > self.warp_width_mm:
+            return float(self.warp_pitch_mm - self.warp_width_mm)
+        return None  # (wales as wide as their spacing touch: no flat-bottomed gap to resolve)
+
     def to_dict(self) -> dict:
         """Plain data, without the unused (None) geometry keys."""
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)

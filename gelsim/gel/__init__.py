@@ -148,7 +148,8 @@ def _no_contact(profile) -> Imprint:
 def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None = None,
           depth_mm: float | None = None, support: FabricSupport | None = None, texture_mm: float | None = None,
           window: str = "touched", warm: Imprint | None = None,
-          envelope_mm: np.ndarray | Callable[..., np.ndarray] | None = None) -> Imprint:
+          envelope_mm: np.ndarray | Callable[..., np.ndarray] | None = None,
+          valley_mm: float | None = None) -> Imprint:
     """Press an object into the gel.
 
     protrusion_mm: (H, W) protrusion map in mm at the profile's image resolution, or already at
@@ -168,6 +169,9 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
         region is read; e.g. :meth:`gelsim.scene.HeightPatch.sample` with the frame's pose). A sequence
         takes it once on the object (:func:`gelsim.sequence.render_sequence`). None: taken here, over the
         touched region of the object's own heights (before the dome's sag).
+    valley_mm: the narrowest valley of the object's crown envelope, mm (``macro_valley_mm`` of a
+        :class:`gelsim.scene.TouchedObject`: a corduroy's gap between wales); the two-scale model's
+        contact-scale grid takes at least ``fidelity.macro_cells_per_valley`` cells across it. None: none.
     Returns an :class:`Imprint` at the profile's image resolution (float32 depth).
     """
     from ..fidelity import get_fidelity
@@ -202,7 +206,9 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
         ts = press_twoscale(work, dx, gel, force_n=force_n, depth_mm=depth_mm, support=support,
                             texture_mm=texture_mm, window=window, macro_cells=fidelity.macro_cells,
                             warm=warm.state if (warm is not None and isinstance(warm.state, MacroState)) else None,
-                            sag=sag, envelope=env, own=own)
+                            sag=sag, envelope=env, own=own,
+                            valley_mm=valley_mm if texture_mm is not None else None,
+                            cells_per_valley=fidelity.macro_cells_per_valley)
         depth_w, mask_w, delta, force, bottomed, state = ts
         if model == "elastic":
             depth_w, mask_w, delta, force, bottomed, state = press_elastic(

@@ -67,7 +67,7 @@ def imprint(name: str, supported: bool, level: str) -> Imprint:
     fab, prot = fabric(name)
     fid = ELASTIC if level == "elastic" else LEVELS[level]
     return press(prot, PATCH, fid, force_n=FORCE_N, support=fab.support() if supported else None,
-                 texture_mm=fab.texture_mm)
+                 texture_mm=fab.texture_mm, valley_mm=fab.macro_valley_mm)
 
 
 def inner(a: np.ndarray) -> np.ndarray:

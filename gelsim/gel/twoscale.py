@@ -365,8 +365,10 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
                    support: FabricSupport | None, texture_mm: float | None, window: str, macro_cells: int,
                    warm: MacroState | None = None, sag: np.ndarray | None = None,
                    envelope: Callable[[tuple[int, int, int, int]], np.ndarray] | None = None,
-                   own: np.ndarray | None = None):
+                   own: np.ndarray | None = None, valley_mm: float | None = None, cells_per_valley: float = 0.0):
     """Press ``work`` (protrusion, mm, (ny, nx) at ``dx`` mm/px) into ``gel``.
+
+    ``macro_cells``, ``valley_mm``, ``cells_per_valley``: the macro grid's size (:func:`macro_cell_px`).
 
     ``sag``: the gel's dome, mm >= 0 (ny, nx), already subtracted from ``work`` (None: a flat gel);
     the crown envelope is taken on the object's own heights, ``work + sag`` (see
@@ -396,8 +398,9 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     sol = None
     for _ in range(2):
         box = bbox(work > np.float32(pmax - reach))
+        f = macro_cell_px(box, macro_cells, dx, valley_mm, cells_per_valley)
         sol = _solve_macro(work, box, dx, gel, tex if has_texture else None, support, force_n, depth_mm,
-                           macro_cells, warm, sag, own)
+                           f, warm, sag, own)
         cb = bbox(sol.p > 0)
         if cb is None or max(cb[1] - cb[0], cb[3] - cb[2]) >= MIN_CONTACT_CELLS or sol.f == 1:
             break
@@ -522,14 +525,27 @@ class _Macro:
     contact_exponent: float | None = None
 
 
-def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, macro_cells, warm, sag=None,
+def macro_cell_px(box: tuple[int, int, int, int], macro_cells: int, dx: float, valley_mm: float | None = None,
+                  cells_per_valley: float = 0.0) -> int:
+    """The macro grid's cell, in pixels of the ``dx`` mm grid, over ``box`` = (r0, r1, c0, c1): ``macro_cells``
+    cells across its longer side, or finer where the object has a narrow envelope valley (``valley_mm``, a
+    corduroy's gap between wales): at least ``cells_per_valley`` cells across it (0: no such rule). A
+    valley that the grid spans with one cell is filled by the crown pooling and the closing, so the gel
+    spans it and the tufts on either side carry less (pinwale corduroy, docs/fidelity.md)."""
+    r0, r1, c0, c1 = box
+    f = max(1, int(math.ceil(max(r1 - r0, c1 - c0) / macro_cells)))
+    if valley_mm and cells_per_valley > 0:
+        f = min(f, max(1, int(valley_mm / (cells_per_valley * dx))))
+    return f
+
+
+def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, f, warm, sag=None,
                  own=None) -> _Macro:
-    """The coarse contact problem over ``box`` = (r0, r1, c0, c1) of ``work`` (``sag``, ``own``: see
-    press_twoscale)."""
+    """The coarse contact problem over ``box`` = (r0, r1, c0, c1) of ``work`` on cells of ``f`` x ``f`` px
+    (:func:`macro_cell_px`; ``sag``, ``own``: see press_twoscale)."""
     r0, r1, c0, c1 = box
     vmax = gel.max_indentation_mm
     region = work[r0:r1, c0:c1]
-    f = max(1, int(math.ceil(max(r1 - r0, c1 - c0) / macro_cells)))
     cm = dx * f
     cshape = (-(-(r1 - r0) // f), -(-(c1 - c0) // f))
     if tex is not None:

@@ -140,3 +140,42 @@ def test_the_coarse_closing_and_the_pooled_cell_span_the_fine_closing(f):
             assert k % 2 == 1 and k >= 1
             assert (k + 1) * f >= fine
             assert k == 1 or (k - 1) * f < fine
+
+
+def test_macro_cell_px_takes_macro_cells_or_the_valley_rule_whichever_is_finer():
+    """The macro grid's cell: ``macro_cells`` across the box's longer side, or fine enough for
+    ``cells_per_valley`` cells across a narrow envelope valley; a wide valley, a missing one or the rule
+    off leave the first; the cell is at least one pixel."""
+    from gelsim.gel.twoscale import macro_cell_px
+
+    box = (0, 720, 0, 960)
+    assert macro_cell_px(box, 64, 0.0197) == 15                              # ceil(960 / 64)
+    assert macro_cell_px(box, 64, 0.0197, None, 2.0) == 15
+    assert macro_cell_px(box, 64, 0.0197, 0.3, 0.0) == 15                   # rule off
+    assert macro_cell_px(box, 64, 0.0197, 0.3, 2.0) == 7                    # 0.3 / (2 x 0.0197) = 7.6
+    assert 7 * 0.0197 <= 0.3 / 2 < 8 * 0.0197
+    assert macro_cell_px(box, 64, 0.0197, 1.3, 2.0) == 15                   # elephant cord: 64 cells do
+    assert macro_cell_px((0, 40, 0, 30), 64, 0.0197, 0.3, 2.0) == 1         # a small box: already fine
+    assert macro_cell_px(box, 64, 0.5, 0.3, 2.0) == 1
+
+
+def test_the_valley_rule_resolves_the_pinwale_corduroys_gaps():
+    """Pinwale corduroy (0.3 mm gaps between 1.6 mm wales) over the whole pad at 320x240, at 4 N: the
+    tufts' relief the gel keeps in their band against a grid of one-pixel cells (320 across). With
+    balanced's 64 macro cells (0.29 mm, one per gap) it keeps 0.73 of it; with the valley rule (2 cells
+    per gap: 2-px cells, 160 across) 0.94. Against the elastic reference at 960x720 (`gelsim bench`
+    on corduroys 64-66) the rule moves the kept relief from 0.77-1.00 of the reference's to 0.96-1.04
+    (docs/fidelity.md)."""
+    from gelsim.fabrics import load_catalog
+    from gelsim.texture import texture_budget
+
+    prof = load_profile("vitac").with_resolution(320)
+    fab = load_catalog()[64]
+    bal = get_fidelity("balanced")
+    assert bal.macro_cells_per_valley == 2.0 and fab.macro_valley_mm == pytest.approx(0.3)
+    kept = {name: texture_budget(fab, 4.0, prof, fid, codec=False).kept for name, fid in {
+        "off": dataclasses.replace(bal, macro_cells_per_valley=0.0),
+        "rule": bal,
+        "finest": dataclasses.replace(bal, macro_cells=320, macro_cells_per_valley=0.0)}.items()}
+    assert kept["off"] < 0.8 * kept["finest"]
+    assert kept["rule"] >= 0.9 * kept["finest"]

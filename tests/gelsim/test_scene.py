@@ -197,3 +197,27 @@ def test_tilt_plane_is_numpys_two_passes_exactly():
     ref += ay * ys[:, None]
     _add_plane(out, ax, xs, ay, ys)
     assert np.array_equal(out, ref)
+
+
+def test_press_properties_carry_the_corduroys_valley_and_nothing_for_others():
+    """What press() takes of an object: a corduroy's gap between wales as its envelope valley, None for
+    other fabrics and rigid indenters, and None for a user's object that does not define it."""
+    from gelsim.fabrics import load_catalog
+    from gelsim.scene import macro_valley_mm, press_properties
+
+    cat = load_catalog()
+    cord = press_properties(FabricObject(cat[64]))
+    assert cord["valley_mm"] == pytest.approx(cat[64].warp_pitch_mm - cat[64].warp_width_mm)
+    assert cord["texture_mm"] == cat[64].texture_mm and cord["support"] == cat[64].support()
+    gaps = [f.macro_valley_mm for f in cat if f.family == "corduroy"]
+    assert len(gaps) == 5 and all(0.2 < g < 1.5 for g in gaps)
+    assert all(f.macro_valley_mm is None for f in cat if f.family != "corduroy")
+    assert press_properties(Sphere(4.0)) == {"support": None, "texture_mm": None, "valley_mm": None}
+
+    class Plate:  # a user's object from before the attribute existed
+        texture_mm = None
+
+        def support(self):
+            return None
+
+    assert macro_valley_mm(Plate()) is None and press_properties(Plate())["valley_mm"] is None
