@@ -121,10 +121,11 @@ def _sag_grid(dome_radius_mm: float, fw: float, fh: float, h: int, w: int) -> np
     return sag
 
 
-def _check_inputs(protrusion_mm, force_n, depth_mm, texture_mm):
+def _check_inputs(protrusion_mm, force_n, depth_mm, texture_mm, valley_mm=None):
     if (force_n is None) == (depth_mm is None):
         raise GelsimError("give exactly one of force_n and depth_mm to press()")
-    for name, val in (("force_n", force_n), ("depth_mm", depth_mm), ("texture_mm", texture_mm)):
+    for name, val in (("force_n", force_n), ("depth_mm", depth_mm), ("texture_mm", texture_mm),
+                      ("valley_mm", valley_mm)):
         if val is not None and not (math.isfinite(val) and val >= 0):
             raise GelsimError(f"{name} = {val} is negative or not finite; give a finite value >= 0")
     p = np.asarray(protrusion_mm)
@@ -177,7 +178,7 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
     from ..fidelity import get_fidelity
 
     fidelity = get_fidelity(fidelity)
-    prot = _check_inputs(protrusion_mm, force_n, depth_mm, texture_mm)
+    prot = _check_inputs(protrusion_mm, force_n, depth_mm, texture_mm, valley_mm)
     if support is not None and not isinstance(support, FabricSupport):
         raise GelsimError(f"support must be a FabricSupport or None, got {type(support).__name__}; "
                           "use fabric.support() for a catalog fabric")

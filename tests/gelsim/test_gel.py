@@ -239,6 +239,9 @@ def test_bad_input(prof):
         press(bad, prof, PYRAMID, force_n=0.1)
     with pytest.raises(GelsimError):
         press(p[:10], prof, PYRAMID, force_n=0.1)
+    for v in (-0.3, float("nan"), float("inf")):   # an object's envelope valley: a finite width >= 0
+        with pytest.raises(GelsimError, match="valley_mm"):
+            press(p, prof, PYRAMID, force_n=0.1, texture_mm=0.5, valley_mm=v)
 
 
 SMALL = load_profile("vitac").with_resolution(96)
