@@ -711,13 +711,17 @@ def _sequence_results(config: GenerateConfig, root: Path, todo: list[SequenceSpe
 
 def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = None,
              progress: Callable[[int, int, dict], None] | None = None, previews: bool = True,
-             ray: str | None = None) -> dict:
+             ray: str | None = None, replace_stale: bool = False,
+             notify: Callable[[str], None] | None = None) -> dict:
     """Generate (or finish) the dataset ``config`` under ``out``; returns the final manifest.
 
     ``progress(done, total, record)`` is called after each sequence (for a progress bar).
     ``ray``: run each sequence as a Ray task instead of in the local pool: ``"local"`` starts a Ray
     instance on this machine (``workers`` CPUs), ``"auto"`` or ``HOST:PORT`` joins a cluster, whose
     nodes must all see ``out`` (checked first). The output is the same bytes either way.
+    ``replace_stale``: a dataset in ``out`` that this code cannot resume is renamed aside
+    (:func:`set_aside_stale`) once the options are checked, and ``notify`` (if given) is told where, in
+    one line.
     """
     from .fabrics import load_catalog
     from .fidelity import get_fidelity
@@ -741,6 +745,10 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
     with connection as cluster:  # joined before anything is written: a bad address leaves no trace
         if cluster is not None:
             root = Path(os.path.abspath(root))  # Ray's workers do not start in this directory
+        if replace_stale:  # (after every check of the options: bad input moves nothing)
+            moved = set_aside_stale(root, config)
+            if moved is not None and notify is not None:
+                notify(f"{out} held a dataset this code cannot resume: moved to {moved}")
         _prepare_out_dir(root, config.options())
         if cluster is not None:
             from .cluster import check_shared_dir

@@ -137,10 +137,6 @@ def run_generate(args: argparse.Namespace) -> int:
         from ..cluster import import_ray
 
         import_ray()  # not installed: one line, before anything is written
-    if args.replace_stale:
-        moved = dataset.set_aside_stale(args.out, cfg)
-        if moved is not None:
-            print(f"{args.out} held a dataset this code cannot resume: moved to {moved}", file=sys.stderr)
     bar = None
     frames_done = [0]
     t0 = time.perf_counter()
@@ -160,7 +156,8 @@ def run_generate(args: argparse.Namespace) -> int:
 
     try:
         manifest = dataset.generate(cfg, args.out, workers=args.workers, progress=progress,
-                                    previews=not args.no_previews, ray=args.ray)
+                                    previews=not args.no_previews, ray=args.ray, replace_stale=args.replace_stale,
+                                    notify=lambda line: print(line, file=sys.stderr))
     finally:
         if bar is not None:
             bar.close()

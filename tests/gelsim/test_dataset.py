@@ -390,6 +390,16 @@ def test_replace_stale_sets_a_stale_dataset_aside_and_nothing_else(tiny, tmp_pat
     # made with other options: also stale
     assert dataset.set_aside_stale(out, dataset.GenerateConfig(fabrics=1)) == out.with_name("ds.stale-3")
     assert not out.exists()
+    assert _gen(out) == 0
+    # bad input alongside: refused before anything is moved
+    m = load_manifest(out)
+    m["source"] = "0" * 64
+    (out / "manifest.json").write_text(json.dumps(m))
+    capsys.readouterr()
+    assert _gen(out, "--replace-stale", "--backend", "torch", "--device", "tpu") == 2
+    with pytest.raises(GelsimError, match="--format"):
+        dataset.generate(dataset.GenerateConfig(format="gif"), out, replace_stale=True)
+    assert out.exists() and not out.with_name("ds.stale-4").exists()
     # not a dataset: never moved
     junk = tmp_path / "junk"
     junk.mkdir()
