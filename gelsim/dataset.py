@@ -81,7 +81,7 @@ PLACEMENT = ("device", "batch")
 MAX_UNITS = 1000
 
 PRESETS: dict[str, dict[str, Any]] = {
-    # A first look in about a minute on 2 cores: 10 fabrics x 3 sequences at 320x240.
+    # A first look in 6-15 s on 2 cores (measured 2026-11-28; 14 s on a slow day): 10 fabrics x 3 sequences at 320x240.
     "quick": dict(fabrics=10, sequences_per_fabric=3, resolution=(320, 240), fidelity="fast"),
     # What `stam experiment --preset cpu` is sized for: all fabrics at 320x240 with the full-resolution
     # imprint (balanced): at 160x120 (0.12 mm/px) the finer weaves fall below two pixels per yarn and

@@ -22,7 +22,7 @@ def register(sub) -> None:
             "per sequence, per-frame labels and DIR/manifest.json. Deterministic: each sequence has its own\n"
             "seed, so the output is the same for any --workers. Interrupted (Ctrl-C, kill -9), rerun the same\n"
             "command to finish without redoing finished sequences.\n\n"
-            "Presets: quick = 10 fabrics x 3 sequences at 320x240, fast (about a minute; `make demo`);\n"
+            "Presets: quick = 10 fabrics x 3 sequences at 320x240, fast (6-15 s on 2 cores; `make demo`);\n"
             "         cpu   = 100 fabrics x 20 sequences at 320x240, balanced, split 7:2:11 (sized for\n"
             "                 `stam experiment --preset cpu`: 1,100 test sequences resolve a few points;\n"
             "                 13 min on 2 cores). With --resolution 960x720, the camera's own frames: about\n"
