@@ -172,5 +172,11 @@ def gather_rng(dist: Dist) -> list[torch.Tensor]:
 
 
 def close() -> None:
+    """Leave the process group at the end of a run, every rank together (called by every rank on the
+    paths that end normally)."""
     if td.is_initialized():
+        # A rank that tears gloo down while a peer still holds its connections can abort in gloo's
+        # destructor ("terminate called without an active exception", exit -6: seen once in a
+        # two-rank test run on 2026-11-28); the barrier lets every rank finish its last collective first.
+        td.barrier()
         td.destroy_process_group()
