@@ -27,7 +27,7 @@ import numpy as np
 
 from ..fabrics import load_catalog
 from ..fidelity import get_fidelity
-from ..scene import FabricObject, field_heights
+from ..scene import FabricObject, field_heights, press_properties
 from ..sensor import load_profile
 from . import Imprint, press
 
@@ -66,8 +66,8 @@ def imprint(name: str, supported: bool, level: str) -> Imprint:
     ``level`` (a :data:`LEVELS` name or "elastic"); cached (the reference takes 1-9 s)."""
     fab, prot = fabric(name)
     fid = ELASTIC if level == "elastic" else LEVELS[level]
-    return press(prot, PATCH, fid, force_n=FORCE_N, support=fab.support() if supported else None,
-                 texture_mm=fab.texture_mm, valley_mm=fab.macro_valley_mm)
+    props = press_properties(fab)
+    return press(prot, PATCH, fid, force_n=FORCE_N, **{**props, "support": props["support"] if supported else None})
 
 
 def inner(a: np.ndarray) -> np.ndarray:
