@@ -230,7 +230,7 @@ def plan(config: GenerateConfig, catalog_size: int) -> list[SequenceSpec]:
 def check_frames(config: GenerateConfig) -> None:
     """One line, before anything is written, when a sequence of ``config.frames`` could keep fewer than
     MIN_CONTACT_FRAMES in contact after its pre-contact frames (``config.precontact``, or the default
-    mixture of assets/motions.toml, whose late starts take up to 12)."""
+    mixture of assets/motions.toml: its early range, and its late starts when their fraction is above 0)."""
     from .motion import MIN_CONTACT_FRAMES, load_motion_ranges
 
     lo, hi = config.frames
@@ -240,7 +240,8 @@ def check_frames(config: GenerateConfig) -> None:
         fix = f"keep --precontact's maximum at most {lo - MIN_CONTACT_FRAMES}"
     else:
         t = load_motion_ranges().timing
-        most = max(t.precontact_frames[1], t.late_start_frames[1])
+        # late starts are drawn only when their fraction is above 0
+        most = max(t.precontact_frames[1], t.late_start_frames[1] if t.late_start_fraction > 0 else 0)
         what = f"the default pre-contact frames (up to {most}, assets/motions.toml)"
         fix = "give --precontact (e.g. 0-1)"
     if lo - most < MIN_CONTACT_FRAMES:

@@ -103,23 +103,33 @@ def test_split_weights_apportion_per_fabric():
         parse_ratio("7:2", "--split", "train:val:test", "7:2:1")
 
 
-def test_frames_too_short_for_the_precontact_mixture_fail_before_anything_is_written(tmp_path):
+def test_frames_too_short_for_the_precontact_mixture_fail_before_anything_is_written(tmp_path, monkeypatch):
     """--frames whose shortest sequence could keep fewer than MIN_CONTACT_FRAMES in contact after the
-    pre-contact frames (given, or the default mixture's late starts) is refused up front, not mid-run."""
+    pre-contact frames (given, or the default mixture: its early range, and its late starts only when
+    their fraction is above 0) is refused up front, not mid-run."""
+    import dataclasses
     import subprocess
     import sys
 
+    import gelsim.motion
     from gelsim.dataset import GenerateConfig, check_frames
     from gelsim.errors import GelsimError
 
     with pytest.raises(GelsimError, match="fewer than 3 frames in contact"):
-        check_frames(GenerateConfig(frames=(8, 10)))              # late starts take up to 12
+        check_frames(GenerateConfig(frames=(3, 4)))               # the default's 0-1 frames leave 2
+    check_frames(GenerateConfig(frames=(8, 10)))                  # no late starts by default
     with pytest.raises(GelsimError, match="at most 5"):
         check_frames(GenerateConfig(frames=(8, 10), precontact=(2, 6)))
     check_frames(GenerateConfig(frames=(8, 10), precontact=(0, 5)))
     check_frames(GenerateConfig())
+    ranges = gelsim.motion.load_motion_ranges()
+    late = dataclasses.replace(ranges, timing=dataclasses.replace(ranges.timing, late_start_fraction=0.2))
+    monkeypatch.setattr(gelsim.motion, "load_motion_ranges", lambda path=None: late)
+    with pytest.raises(GelsimError, match="fewer than 3 frames in contact"):
+        check_frames(GenerateConfig(frames=(8, 10)))              # late starts take up to 12
+    monkeypatch.undo()
     out = tmp_path / "ds"
-    r = subprocess.run([sys.executable, "-m", "gelsim", "generate", "--frames", "8-10", "--out", str(out),
+    r = subprocess.run([sys.executable, "-m", "gelsim", "generate", "--frames", "3-4", "--out", str(out),
                         "--fabrics", "1"], capture_output=True, text=True)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
     assert not out.exists()
