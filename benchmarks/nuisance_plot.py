@@ -1,0 +1,58 @@
+"""Accuracy against nuisance severity per model (docs/nuisance.md, "Robustness benchmark").
+
+Reads the ``results.json`` of `stam experiment` runs, one per severity (each labelled SEVERITY=DIR), and plots
+each model's accuracy, averaged over the runs' n, against severity, clean and noisy side by side, with the
+mean of the cells' 95% intervals as error bars (a display aid: the paired comparisons are `stam compare`'s).
+
+    .venv/bin/python benchmarks/nuisance_plot.py 0=OUT/none 0.5=OUT/h05 1=OUT/handheld 2=OUT/h2 --out plot.png
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("runs", nargs="+", metavar="SEVERITY=DIR")
+    p.add_argument("--out", required=True)
+    p.add_argument("--title", default="accuracy against nuisance severity")
+    a = p.parse_args(argv)
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from gelsim.atomic import write_figure
+
+    pts: dict = {}
+    for item in a.runs:
+        sev, _, d = item.partition("=")
+        tables = json.loads((Path(d) / "results.json").read_text())["tables"]
+        for setting, models in tables.items():
+            for model, cells in models.items():
+                means = [c["mean"] for c in cells.values()]
+                half = [(c["ci95"][1] - c["ci95"][0]) / 2 for c in cells.values()]
+                pts.setdefault((setting, model), []).append((float(sev), np.mean(means), np.mean(half)))
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.6), sharey=True)
+    for ax, setting in zip(axes, ("clean", "noisy")):
+        for (s, model), rows in sorted(pts.items()):
+            if s != setting:
+                continue
+            rows.sort()
+            x, y, e = (np.array(v) for v in zip(*rows))
+            ax.errorbar(x, y, yerr=e, marker="o", capsize=3, label=model)
+        ax.set_title(f"{setting} windows")
+        ax.set_xlabel("severity")
+    axes[0].set_ylabel("test accuracy, % (mean over n)")
+    axes[0].legend()
+    fig.suptitle(a.title)
+    write_figure(a.out, fig)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
