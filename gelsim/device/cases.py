@@ -109,3 +109,35 @@ def numpy_reference(case: SequenceCase) -> list:
         out.append(im)
         prev = im
     return out
+
+
+def device_imprints(cases: list[SequenceCase], device="cpu") -> list[list]:
+    """Every case's frames pressed by :func:`gelsim.device.imprint.press_batch`, frame t of every case in one
+    batch (the cases' sequences in step, each warm-started from its own previous frame): per case the list of
+    its :class:`~gelsim.device.imprint.ImprintBatch` rows as (batch, row) pairs."""
+    import torch
+
+    from .imprint import press_batch
+
+    if not cases:
+        return []
+    profile, fid = cases[0].profile, cases[0].fidelity
+    out: list[list] = [[] for _ in cases]
+    state: list = [None] * len(cases)
+    for t in range(max(len(c) for c in cases)):
+        idx = [i for i, c in enumerate(cases) if t < len(c)]
+        prot = torch.as_tensor(np.stack([cases[i].prot[t] for i in idx]), device=device)
+        envs = [cases[i].env for i in idx]
+        env = None
+        if all(e is not None for e in envs):
+            env = torch.as_tensor(np.stack([e[t] for e in envs]), device=device)
+        elif any(e is not None for e in envs):
+            env = torch.as_tensor(np.stack([cases[i].env[t] if cases[i].env is not None else cases[i].prot[t]
+                                            for i in idx]), device=device)
+        warm = [state[i] if cases[i].warm[t] else None for i in idx]
+        ib = press_batch(prot, profile, fid, [cases[i].force_n[t] for i in idx], props=[cases[i].props for i in idx],
+                         envelope_mm=env, warm=warm)
+        for j, i in enumerate(idx):
+            state[i] = ib.states[j]
+            out[i].append((ib, j))
+    return out

@@ -165,13 +165,14 @@ def texture_depth(surface, env, ny, nx, pressure_cells, scale: TextureScale, gel
     else:
         tq = t
 
-    def smooth(cells):
-        # (each frame's own cells, continued by replication, as the box filter's border reads them)
+    def ext(cells):
         if cells.dim() == 4:
-            x = torch.stack([ops.extend(cells[:, i], rows, cols) for i in range(cells.shape[1])], dim=1)
-        else:
-            x = ops.extend(cells, rows, cols)
-        return ops.box_filter(ops.box_filter(x, k), k)
+            return torch.stack([ops.extend(cells[:, i], rows, cols) for i in range(cells.shape[1])], dim=1)
+        return ops.extend(cells, rows, cols)
+
+    def smooth(cells):
+        # (each frame's own cells, continued by replication, as each box filter's border reads them)
+        return ops.box_filter(ext(ops.box_filter(ext(cells), k)), k)
 
     q_lo = 2.0 * math.pi / (k * fs * dx)
     e_star = effective_modulus_mpa(gel)
