@@ -478,8 +478,8 @@ def coarse_envelope(own, plans: list[MacroPlan], tex: list[float | None], dx: fl
 
 
 def resample_warm(states: list, plans: list[MacroPlan], shape, device):
-    """Each warm state's pressure at the centres of this frame's cells (:func:`gelsim.gel.twoscale._resample_pressure`,
-    with OpenCV's remap arithmetic: coordinates on a 1/32 grid, zero beyond the old grid): float32 ``(B, cy, cx)``
+    """Each warm state's pressure at the centres of this frame's cells (:func:`gelsim.gel.twoscale._resample_pressure`:
+    OpenCV's bilinear remap at float32 coordinates, zero beyond the old grid): float32 ``(B, cy, cx)``
     (zero for a frame whose state is None)."""
     torch = ops.torch_module()
     bsz = len(states)
@@ -503,11 +503,11 @@ def resample_warm(states: list, plans: list[MacroPlan], shape, device):
         blk, (oy, ox) = st.block, st.origin
         sy[b] = ((ys + 0.5) / blk - 0.5 - oy / blk).astype(np.float32)
         sx[b] = ((xs + 0.5) / blk - 0.5 - ox / blk).astype(np.float32)
-    # OpenCV: cvRound(x * 32), whole part >> 5, fraction & 31, taps beyond the source read the border's 0
-    qy = np.rint(sy.astype(np.float64) * 32).astype(np.int64)
-    qx = np.rint(sx.astype(np.float64) * 32).astype(np.int64)
-    y0, ay = qy >> 5, (qy & 31).astype(np.float32) / np.float32(32)
-    x0, ax = qx >> 5, (qx & 31).astype(np.float32) / np.float32(32)
+    # OpenCV's remap (5.x): the float coordinates' whole part and fraction, taps beyond the source read 0
+    y0 = np.floor(sy).astype(np.int64)
+    x0 = np.floor(sx).astype(np.int64)
+    ay = (sy - y0).astype(np.float32)
+    ax = (sx - x0).astype(np.float32)
     lim_y = np.array([0 if s is None else s.pressure_mpa.shape[0] for s in states])[:, None]
     lim_x = np.array([0 if s is None else s.pressure_mpa.shape[1] for s in states])[:, None]
 
