@@ -141,3 +141,35 @@ def device_imprints(cases: list[SequenceCase], device="cpu") -> list[list]:
             state[i] = ib.states[j]
             out[i].append((ib, j))
     return out
+
+
+def agreement(reference, device) -> dict[str, np.ndarray]:
+    """Per-frame agreement of device imprints with the numpy path's (two lists of :class:`gelsim.gel.Imprint`):
+    ``mask`` the share of pixels whose contact is the same, ``area_rel`` the contact area's relative difference
+    (against the numpy path's; 0 where both are 0), ``centroid_px`` the contact centroids' largest coordinate
+    difference (0 where neither has contact, inf where one has), ``indentation_mm`` and ``depth_mm`` (the depth
+    maps' largest difference). float64 arrays, one value per frame."""
+    from ..sequence import contact_location
+
+    out: dict[str, list] = {"mask": [], "area_rel": [], "centroid_px": [], "indentation_mm": [], "depth_mm": []}
+    for r, d in zip(reference, device, strict=True):
+        out["mask"].append(float(np.mean(r.contact_mask == d.contact_mask)))
+        a, b = r.contact_area_mm2, d.contact_area_mm2
+        out["area_rel"].append(abs(a - b) / a if a > 0 else (0.0 if b == 0 else np.inf))
+        c1, _ = contact_location(r.contact_mask)
+        c2, _ = contact_location(d.contact_mask)
+        f1, f2 = bool(np.isfinite(c1).all()), bool(np.isfinite(c2).all())
+        out["centroid_px"].append(float(np.abs(c1 - c2).max()) if f1 and f2 else (0.0 if f1 == f2 else np.inf))
+        out["indentation_mm"].append(abs(r.indentation_mm - d.indentation_mm))
+        out["depth_mm"].append(float(np.abs(r.depth_mm - d.depth_mm).max()))
+    return {k: np.asarray(v, np.float64) for k, v in out.items()}
+
+
+def within(metrics: dict[str, np.ndarray], tolerance: dict[str, float]) -> np.ndarray:
+    """bool per frame: every metric of :func:`agreement` within ``tolerance`` (keys as
+    :data:`gelsim.device.imprint.TOLERANCE`: ``mask_agreement`` a lower bound, the rest upper bounds)."""
+    ok = metrics["mask"] >= tolerance["mask_agreement"]
+    for k in ("area_rel", "centroid_px", "indentation_mm", "depth_mm"):
+        if k in tolerance:
+            ok &= metrics[k] <= tolerance[k]
+    return ok
