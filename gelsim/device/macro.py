@@ -154,22 +154,31 @@ def cloth_operator(cells, dx, gel, supports, ks, shape, device) -> BatchOperator
         extra.append((pasternak, cs, ell, cw))
     if not any_support:
         return base
-    kf = base.kf.clone()
-    for b, x in enumerate(extra):
-        if x is None:
-            continue
-        pasternak, cs, ell, cw = x
-        if pasternak:
-            kf[b] += cs * _spectrum("pasternak", (shape, m, float(dx[b]), float(ell)), kf.device)
-        if cw:
-            kf[b] += cw
+    torch = ops.torch_module()
+    dev = base.kf.device
+    cs = torch.as_tensor([x[1] if x is not None and x[0] else 0.0 for x in extra], device=dev, dtype=torch.float32)
+    cw = torch.as_tensor([x[3] if x is not None else 0.0 for x in extra], device=dev, dtype=torch.float32)
+    kf = base.kf + cw[:, None, None]
+    past = [b for b, x in enumerate(extra) if x is not None and x[0]]
+    if past:
+        zero = torch.zeros_like(base.kf[0])
+        kp = torch.stack([_spectrum("pasternak", (shape, m, float(dx[b]), float(extra[b][2])), dev)
+                          if (extra[b] is not None and extra[b][0]) else zero for b in range(len(extra))])
+        kf = kf + cs[:, None, None] * kp
     return BatchOperator(kf, shape, m)
 
 
 # ---------------------------------------------------------------- Polonsky-Keer, batched
 
-def _vdot(a, b):
-    return (a * b).sum(dim=(1, 2), dtype=a.dtype if a.dtype.is_floating_point and a.dtype.itemsize > 4 else None)
+def _sum(x):
+    """Each frame's sum of ``(B, h, w)`` ``x``, accumulated in float64: ``(B,)`` float64."""
+    return x.sum(dim=(1, 2), dtype=ops.torch_module().float64)
+
+
+# How often (iterations) the batched solve asks the device whether every frame has stopped: each question waits
+# for the device's queue to drain; a frame that has stopped is carried unchanged meanwhile, so asking less often
+# costs only a few idle iterations.
+CHECK_EVERY = {"cpu": 1, "cuda": 4}
 
 
 def pk_solve(op: BatchOperator, h, valid, area, *, force=None, delta=None, p0, tol: float, maxit: int):
@@ -179,81 +188,80 @@ def pk_solve(op: BatchOperator, h, valid, area, *, force=None, delta=None, p0, t
     h: float64 ``(B, cy, cx)`` object surface below its top, mm (any value off ``valid``); valid: bool, the
     frame's own grid; area: float64 ``(B,)`` cell area mm^2; ``force`` (N) or ``delta`` (mm): float64 ``(B,)``;
     p0: the start, MPa. Returns (pressure float32 MPa, approach float64 mm (B,) -- ``delta`` under approach
-    control)."""
+    control). (Dot products: float32 products summed in float64.)"""
     torch = ops.torch_module()
     force_ctl = force is not None
-    vf = valid.float()
     target = (h if force_ctl else h + delta[:, None, None]).float()
     p = torch.where(valid, p0, 0.0).float()
     if force_ctl:
-        s = p.double().sum(dim=(1, 2))
+        s = _sum(p)
         empty = s <= 0
         if bool(empty.any()):
             hmax = torch.where(valid, h, -math.inf).amax(dim=(1, 2))
             top = ((h >= (hmax - 1e-12)[:, None, None]) & valid).float()
             p = torch.where(empty[:, None, None], top, p)
-            s = p.double().sum(dim=(1, 2))
+            s = _sum(p)
         p = p * (force / (area * s)).float()[:, None, None]
     b = p.shape[0]
     t = torch.zeros_like(p)
     g_old = torch.ones(b, dtype=torch.float64, device=p.device)
     conj = torch.zeros(b, dtype=torch.bool, device=p.device)          # d: the last step kept the contact set
     done = torch.zeros(b, dtype=torch.bool, device=p.device)
-    for _ in range(maxit):
+    every = CHECK_EVERY.get(p.device.type, 1)
+    for it in range(maxit):
         icf = (p > 0) & valid
         icf_f = icf.float()
-        n = icf_f.double().sum(dim=(1, 2))
+        n = _sum(icf_f)
         done = done | (n == 0)
         act = ~done
-        if not bool(act.any()):
+        if it % every == 0 and not bool(act.any()):
             break
         nn = torch.where(n > 0, n, 1.0)
         g = op(p) - target
         if force_ctl:
-            g = g - ((g.double() * icf_f).sum(dim=(1, 2)) / nn).float()[:, None, None]
+            g = g - (_sum(g * icf_f) / nn).float()[:, None, None]
         gm = g * icf_f
-        gg = (gm.double() * gm).sum(dim=(1, 2))
+        gg = _sum(gm * gm)
         beta = (gg / g_old).float()[:, None, None]
         t = torch.where(conj[:, None, None], (t * icf_f) * beta + gm, gm)
         g_old = torch.where(act, gg.clamp(min=1e-300), g_old)
         r = op(t)
         if force_ctl:
-            r = r - ((r.double() * icf_f).sum(dim=(1, 2)) / nn).float()[:, None, None]
-        den = (r.double() * t).sum(dim=(1, 2))
+            r = r - (_sum(r * icf_f) / nn).float()[:, None, None]
+        den = _sum(r * t)
+        # den == 0: the contact set is solved exactly; the cells that overlap the object join (a restart), or the
+        # frame stops if none do (computed for every frame: a question to the device per step costs more)
         zero_den = act & (den == 0)
-        if bool(zero_den.any()):
-            iol0 = (p == 0) & (g < 0) & valid
-            has = iol0.any(dim=(1, 2))
-            done = done | (zero_den & ~has)
-            restart = zero_den & has
-            fill = (p.double().sum(dim=(1, 2)) / nn).float()
-            pr = torch.where(iol0, fill[:, None, None], p)
-            if force_ctl:
-                pr = pr * (force / (area * pr.double().sum(dim=(1, 2)))).float()[:, None, None]
-            p = torch.where(restart[:, None, None], pr, p)
-            t = torch.where(restart[:, None, None], 0.0, t)
-            conj = conj & ~restart
+        iol0 = (p == 0) & (g < 0) & valid
+        has = iol0.any(dim=(1, 2))
+        done = done | (zero_den & ~has)
+        restart = (zero_den & has)[:, None, None]
+        pr = torch.where(iol0, (_sum(p) / nn).float()[:, None, None], p)
+        if force_ctl:
+            pr = pr * (force / (area * _sum(pr).clamp(min=1e-300))).float()[:, None, None]
+        p = torch.where(restart, pr, p)
+        t = torch.where(restart, 0.0, t)
+        conj = conj & ~restart[:, 0, 0]
         step = act & (den != 0)
-        tau = ((g.double() * t).sum(dim=(1, 2)) / torch.where(den != 0, den, 1.0)).float()[:, None, None]
+        tau = (_sum(g * t) / torch.where(den != 0, den, 1.0)).float()[:, None, None]
         p_new = torch.clamp(p - tau * t, min=0.0)
         iol = (g < 0) & (p_new == 0) & valid
         grew = iol.any(dim=(1, 2))
         p_new = torch.where(iol, p_new - tau * g, p_new)
-        s = p_new.double().sum(dim=(1, 2))
+        s = _sum(p_new)
         empty = s <= 0
         if force_ctl:
             p_new = p_new * (force / (area * torch.where(empty, 1.0, s))).float()[:, None, None]
             s = torch.where(empty, s, force / area)
-        change = (p_new - p).abs().double().sum(dim=(1, 2)) / torch.where(empty, 1.0, s)
+        change = _sum((p_new - p).abs()) / torch.where(empty, 1.0, s)
         stop = empty | ((change < tol) & ~grew)
-        sel = step[:, None, None]
-        p = torch.where(sel, p_new, p)
+        p = torch.where(step[:, None, None], p_new, p)
         conj = torch.where(step, ~grew, conj)
         done = done | (step & stop)
     if force_ctl:
         ic = (p > 0) & valid
         u = (op(p).double() - h)
-        cnt = ic.double().sum(dim=(1, 2))
+        cnt = _sum(ic.double())
         delta = torch.where(cnt > 0, (u * ic).sum(dim=(1, 2)) / cnt.clamp(min=1), 0.0)
     return p, delta
 
