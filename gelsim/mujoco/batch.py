@@ -101,21 +101,14 @@ class BatchGelSightSensor:
         self.fidelity = fid
         self.seed, self.noise = int(seed), bool(noise)
         self._hosts: dict = {}
+        self._make = dict(profile=profile, fidelity=fid, resolution=resolution, seed=seed, noise=noise)
         self._pads = []
         for k, entry in enumerate(pads):
             try:
                 model, data, pad = entry
             except (TypeError, ValueError):
                 raise GelsimError(f"pad {k}: give (model, data, pad geom name), got {entry!r}") from None
-            key = (id(model), pad)
-            host = self._hosts.get(key)
-            if host is None or host.model is not model:
-                host = GelSightSensor(model, data, pad, profile=profile, fidelity=fid, resolution=resolution,
-                                      seed=seed, noise=noise)
-                self._hosts[key] = host
-            if not isinstance(data, mujoco.MjData):
-                raise GelsimError(f"pad {k}: data is not a mujoco.MjData")
-            self._pads.append((host, data, _PadState()))
+            self._pads.append((self._host(model, data, pad, k), data, _PadState()))
         first = self._pads[0][0]
         self.profile = first.profile
         if any(h.profile != self.profile for h, _, _ in self._pads):
@@ -125,6 +118,27 @@ class BatchGelSightSensor:
                                                 device=self.device))
         self._rest = first._rest
         self.timings_ms: dict[str, float] = {}
+
+    def _host(self, model, data, pad, k):
+        """The single sensor whose machinery pads of ``model``'s geom ``pad`` share (made on first use)."""
+        if not isinstance(data, mujoco.MjData):
+            raise GelsimError(f"pad {k}: data is not a mujoco.MjData")
+        key = (id(model), pad)
+        host = self._hosts.get(key)
+        if host is None or host.model is not model:
+            host = GelSightSensor(model, data, pad, **self._make)
+            self._hosts[key] = host
+        if hasattr(self, "profile") and host.profile != self.profile:
+            raise GelsimError("the pads of one batch share one profile and resolution; make one batch per sensor kind")
+        return host
+
+    def set_pad(self, i: int, model, data, pad: str) -> None:
+        """Pad ``i`` is now the geom ``pad`` of (``model``, ``data``) (an environment reset to a new scene): its
+        contact history and noise stream restart. Machinery no pad uses any more is let go."""
+        host = self._host(model, data, pad, i)
+        self._pads[i] = (host, data, _PadState())
+        used = {id(h) for h, _, _ in self._pads}
+        self._hosts = {k: h for k, h in self._hosts.items() if id(h) in used}
 
     def __len__(self) -> int:
         return len(self._pads)
@@ -240,8 +254,9 @@ def _check_torch_optics(profile) -> None:
     from ..optics.lut import LutShader
 
     if LutShader(profile).exact:
-        raise GelsimError(f"profile {profile.name!r} shades with a per-pixel exact table, which the torch optics do not "
-                          "render; use a profile with a tiled table (vitac) for the batched sensor, or "
+        h, w = profile.shape
+        raise GelsimError(f"profile {profile.name!r} at {w}x{h} px shades with the table's per-pixel lookup, which the "
+                          "torch optics do not render; use vitac at 64x48 px or more for the batched sensor, or "
                           "GelSightSensor for this one")
 
 

@@ -70,9 +70,9 @@ def test_batch_of_256_equals_single_sensors():
 
 
 @CUDA
-@pytest.mark.parametrize("n", [1, 16, 256])
+@pytest.mark.parametrize("n", [1, 16])
 def test_batch_equals_single_sensors_cuda(n):
-    _compare(n, "cuda", steps=1 if n > 16 else 2)
+    _compare(n, "cuda")
 
 
 def test_pads_without_contact_are_the_flat_gel():
