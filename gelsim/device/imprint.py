@@ -34,9 +34,10 @@ from .texture import TextureScale, texture_depth
 #: its pressure changes by less than 1e-3 per conjugate-gradient step, and a rounding difference (the FFTs' order of
 #: additions) can stop it one step apart or let a cell join the contact one step later. Those frames differ by what
 #: the numpy path's own solve leaves undetermined: halving its stopping tolerance moves its contact area by up to
-#: 1.6%, the centroid by 0.33 px, the indentation by 4e-3 mm and 0.7% of the mask (the catalog sample below, 1,207
-#: frames), more than the device path differs from it.
-TOLERANCE = {"mask_agreement": 0.998, "area_rel": 0.01, "centroid_px": 0.5, "indentation_mm": 1e-3}
+#: 1.7-2.6%, the centroid by 0.6 px, the indentation by 9e-3-1.1e-2 mm and 0.6-0.7% of the mask (a fabric of every
+#: family pressed, slipped and twisted, 1,205-1,207 frames per level), more than the device path differs from it
+#: (worst frames: 1.6%, 0.4 px, 7e-4 mm, 0.17% of the mask).
+TOLERANCE = {"mask_agreement": 0.998, "area_rel": 0.02, "centroid_px": 0.5, "indentation_mm": 1e-3}
 #: The issue's figures, met by at least :data:`TYPICAL_SHARE` of the frames (measured: 99.7% of 1,207 balanced
 #: frames of a fabric of every family pressed, slipped and twisted at 320x240).
 TYPICAL = {"mask_agreement": 0.999, "area_rel": 0.002, "centroid_px": 0.05, "indentation_mm": 1e-4}

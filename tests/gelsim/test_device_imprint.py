@@ -1,7 +1,7 @@
 """gelsim.device.imprint: the two-scale imprint in torch agrees with the numpy path within its stated tolerance.
 
 Tolerance (gelsim.device.imprint.TOLERANCE, justified in docs/device.md): every frame's contact mask the same on
-99.8% of the pixels, the contact area within 1%, its centroid within 0.5 px, the indentation within 1e-3 mm; and at
+99.8% of the pixels, the contact area within 2%, its centroid within 0.5 px, the indentation within 1e-3 mm; and at
 least 98% of the frames within the issue's figures (TYPICAL: 99.9%, 0.2%, 0.05 px, 1e-4 mm). Cases: catalog fabrics of several families pressed, slipped and twisted at
 320x240 (gelsim.device.cases), the sequences in step (frame t of every case in one batch, each warm-started from
 its own previous frame), on the CPU build of torch and, where there is one, on a CUDA device. The whole catalog
