@@ -23,6 +23,7 @@ Issue 45's goals, one GPU: 1,000 frames/s end to end at 960x720, 10,000 sensor r
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import platform
 import sys
@@ -31,7 +32,6 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")   # before numpy, OpenCV and torch load their thread pools
 
-import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from gelsim.cli import print_result, run_script  # noqa: E402
@@ -58,18 +58,15 @@ def _sync(device):
         torch.cuda.synchronize(device)
 
 
-def frame_rows(device, resolution: tuple[int, int], fidelity: str, batch: int, distinct: int, frames: int,
-               reps: int, numpy_frames: int) -> list[dict]:
-    """The imprint and whole-frame rows at one resolution (see the module docstring)."""
-    import torch
-
+@functools.lru_cache(maxsize=4)
+def _prepared(resolution: tuple[int, int], fidelity: str, distinct: int, frames: int):
+    """(profile, fidelity, ``distinct`` sequences prepared on the CPU, their CPU seconds): catalog fabrics of several
+    families, press, slip and twist in turn (kept: a retry at a smaller batch reuses them)."""
     from gelsim.device.cases import family_sample
-    from gelsim.device.frame import DeviceRenderer, prepare_sequence, render_sequences
+    from gelsim.device.frame import prepare_sequence
     from gelsim.fabrics import load_catalog
     from gelsim.fidelity import get_fidelity
-    from gelsim.gel import press
     from gelsim.motion import sample_motion
-    from gelsim.optics import Renderer
     from gelsim.sensor import load_profile
 
     w, h = resolution
@@ -81,16 +78,27 @@ def frame_rows(device, resolution: tuple[int, int], fidelity: str, batch: int, d
     cpu_s = 0.0
     for k in range(distinct):
         fab = cat[ids[(7 * k) % len(ids)]]
-        action = ACTIONS[k % 3]
-        m = sample_motion(action, 1000 + k, frames=(frames, frames), precontact=(1, 1))
+        m = sample_motion(ACTIONS[k % 3], 1000 + k, frames=(frames, frames), precontact=(1, 1))
         p = prepare_sequence(fab, m, profile, fid, seed=1000 + k)
         cpu_s += sum(p.seconds.values())
         prepared.append(p)
+    return profile, fid, prepared, cpu_s
+
+
+def frame_rows(device, resolution: tuple[int, int], fidelity: str, batch: int, distinct: int, frames: int,
+               reps: int, numpy_frames: int) -> list[dict]:
+    """The imprint and whole-frame rows at one resolution (see the module docstring)."""
+    from gelsim.device.frame import DeviceRenderer, render_sequences
+    from gelsim.gel import press
+    from gelsim.optics import Renderer
+
+    w, h = resolution
+    profile, fid, prepared, cpu_s = _prepared(resolution, fidelity, distinct, frames)
     host_per_frame = cpu_s / (distinct * frames)
-    # the numpy imprint on one core, on the same frames (a handful)
+    # the numpy imprint on one core, on the same frames (the distinct sequences'), the thread's CPU time
     np_s, np_n = 0.0, 0
     warmed = False
-    for p in prepared[:max(1, min(distinct, 3))]:
+    for p in prepared:
         prev = None
         c = p.contact
         for i in range(min(frames, numpy_frames)):
@@ -105,9 +113,9 @@ def frame_rows(device, resolution: tuple[int, int], fidelity: str, batch: int, d
             if not warmed:          # (the compiled kernels load on the first press)
                 press(prot, profile, fid, force_n=f, envelope_mm=env, **p.props)
                 warmed = True
-            t = time.process_time()
+            t = time.thread_time()
             prev = press(prot, profile, fid, force_n=f, warm=prev, envelope_mm=env, **p.props)
-            np_s += time.process_time() - t
+            np_s += time.thread_time() - t
             np_n += 1
     seqs = [prepared[k % distinct] for k in range(batch)]
     renderer = DeviceRenderer(Renderer(profile, "torch", seed=0, device=str(device)))
@@ -171,8 +179,26 @@ def sensor_rows(device, counts: list[int], resolution: tuple[int, int], reps: in
     return rows
 
 
+def _attempt(fn, size: int, what: str, device) -> list[dict]:
+    """``fn(size)``'s rows; on the device running out of memory, again at half the size (down to 1), and a row
+    saying so; any other error becomes a row naming it (so that one case cannot lose the others)."""
+    import torch
+
+    while True:
+        try:
+            return fn(size)
+        except torch.OutOfMemoryError:
+            torch.cuda.empty_cache() if device.type == "cuda" else None
+            if size <= 1:
+                return [{"what": what, "error": "out of device memory at size 1"}]
+            print(f"{what}: out of device memory at {size}; trying {size // 2}", file=sys.stderr)
+            size //= 2
+        except Exception as e:  # noqa: BLE001 - recorded in the results, the next case runs
+            return [{"what": what, "error": f"{type(e).__name__}: {e}"[:400]}]
+
+
 def run(device_name: str, resolutions, fidelity: str, batch: int, distinct: int, frames: int, reps: int,
-        sensors, sensor_resolution, numpy_frames: int) -> dict:
+        sensors, sensor_resolution, numpy_frames: int, out: str | None = None) -> dict:
     import torch
 
     from gelsim.optics.torch_backend import resolve_device
@@ -182,13 +208,22 @@ def run(device_name: str, resolutions, fidelity: str, batch: int, distinct: int,
     dev = resolve_device(device_name)
     if dev.type == "cpu":
         torch.set_num_threads(1)
-    rows = []
+    info = {"machine": machine(dev), "fidelity": fidelity, "goal_fps_960x720": GOAL_FPS_960,
+            "goal_sensor_renders_per_s_320x240": GOAL_SENSOR_RPS, "rows": []}
+
+    def keep(rows):
+        info["rows"] += rows
+        if out:              # after every case: a run stopped by its time limit keeps what it measured
+            from gelsim.atomic import atomic_write_json
+
+            atomic_write_json(out, info)
+
     for res in resolutions:
-        rows += frame_rows(dev, res, fidelity, batch, distinct, frames, reps, numpy_frames)
-    if sensors:
-        rows += sensor_rows(dev, sensors, sensor_resolution, reps)
-    return {"machine": machine(dev), "fidelity": fidelity, "goal_fps_960x720": GOAL_FPS_960,
-            "goal_sensor_renders_per_s_320x240": GOAL_SENSOR_RPS, "rows": rows}
+        keep(_attempt(lambda b: frame_rows(dev, res, fidelity, b, distinct, frames, reps, numpy_frames), batch,
+                      f"frame {res[0]}x{res[1]}", dev))
+    for n in sensors:
+        keep(_attempt(lambda k: sensor_rows(dev, [k], sensor_resolution, reps), n, f"sensors N={n}", dev))
+    return info
 
 
 def markdown(info: dict) -> str:
@@ -198,7 +233,9 @@ def markdown(info: dict) -> str:
     lines = [head, "", "| resolution | what | device | batch / N | frames/s or renders/s | ms | clock |",
              "|---|---|---|---:|---:|---|---|"]
     for r in info["rows"]:
-        if "renders_per_s" in r:
+        if "error" in r:
+            lines.append(f"| | {r['what']} | | | | failed: {r['error']} | |")
+        elif "renders_per_s" in r:
             lines.append(f"| {r['resolution']} | {r['what']} | {r['device']} | {r['n']} | {r['renders_per_s']} | "
                          f"{r['ms_per_call']} per call: {r['ms_by_stage']} | {r['clock']} |")
         elif "fps" in r:
@@ -228,7 +265,8 @@ def main(argv=None) -> int:
     ap.add_argument("--distinct", type=int, default=6, help="distinct sequences prepared on the CPU; default 6")
     ap.add_argument("--frames", type=int, default=8, help="frames per sequence; default 8")
     ap.add_argument("--reps", type=int, default=2, help="timed runs per case (the fastest is kept); default 2")
-    ap.add_argument("--numpy-frames", type=int, default=4, help="frames per sequence of the numpy row; default 4")
+    ap.add_argument("--numpy-frames", type=int, default=100, help="frames per sequence of the numpy row (all of the "
+                    "distinct sequences' frames up to this); default 100")
     ap.add_argument("--sensors", default="", help="N list for the sensor rows, e.g. 1,16,256 ('' for none)")
     ap.add_argument("--sensor-resolution", default="320x240", help="WxH of the sensor rows; default 320x240")
     ap.add_argument("--json", action="store_true", help="print one JSON document instead of the table")
@@ -236,11 +274,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     sensors = [int(v) for v in args.sensors.split(",") if v.strip()]
     info = run(args.device, _resolutions(args.resolutions), args.fidelity, args.batch, args.distinct, args.frames,
-               args.reps, sensors, _resolutions(args.sensor_resolution)[0], args.numpy_frames)
-    if args.out:
-        from gelsim.atomic import atomic_write_json
-
-        atomic_write_json(args.out, info)
+               args.reps, sensors, _resolutions(args.sensor_resolution)[0], args.numpy_frames, args.out)
     return print_result(args.json, info, markdown(info))
 
 

@@ -136,7 +136,9 @@ for name in ("bench_frame.json", "bench_sensor.json"):
     m = d["machine"]
     rows.append(f"{name}: {m.get('gpu', m['cpu'])}, {m['cpus']} CPUs, torch {m['torch']}")
     for r in d["rows"]:
-        if "renders_per_s" in r:
+        if "error" in r:
+            rows.append(f"  {r['what']}: FAILED {r['error']}")
+        elif "renders_per_s" in r:
             rows.append(f"  sensors {r['resolution']} N={r['n']:>5}: {r['renders_per_s']:>10} renders/s  ({r['ms_per_call']} ms per call)")
         elif "fps" in r:
             rows.append(f"  {r['what']:<8} {r['resolution']} batch {r['batch']}: {r['fps']:>8} frames/s  {r['ms_per_frame_by_stage']}")

@@ -65,8 +65,8 @@ class ImprintBatch:
     def imprint(self, b: int) -> Imprint:
         """Frame ``b`` as a numpy :class:`gelsim.gel.Imprint` (copied to the host)."""
         st = self.states[b]
-        return Imprint(self.depth_mm[b].cpu().numpy(), self.contact_mask[b].cpu().numpy(), float(self.indentation_mm[b]),
-                       float(self.normal_force_n[b]), float(self.contact_area_mm2[b]), bool(self.bottomed[b]),
+        return Imprint(self.depth_mm[b].cpu().numpy(), self.contact_mask[b].cpu().numpy(),
+                       float(self.indentation_mm[b]), float(self.normal_force_n[b]), float(self.contact_area_mm2[b]), bool(self.bottomed[b]),
                        None if st is None else st.to_numpy())
 
 
@@ -340,7 +340,6 @@ def press_batch(protrusion_mm, profile, fidelity, force_n, *, props=None, envelo
         cb = ops.bbox((res.p > 0) & res.valid).cpu().numpy()
     plans = res.plans
     timings["macro"] = clock() - t0
-    t1 = clock()
     area_c = np.array([pl.cm * pl.cm for pl in plans])
     psum = res.p.double().sum(dim=(1, 2)).cpu().numpy()
     lforce_out = psum * area_c
@@ -404,7 +403,7 @@ def _imprint_touched(res: MacroResult, cb, which, work, own, sag, env_full, fram
     vmax = float(gel.max_indentation_mm)
     delta = np.asarray(res.delta, np.float64).copy()
     # 3. the gel's displacement around the patch (one more convolution over a padded window)
-    mcs, big = [], []
+    big = []
     for b, pl in enumerate(plans):
         f, cm = pl.f, pl.cm
         r0, r1, c0, c1 = pl.box

@@ -74,11 +74,12 @@ def _gradient(x, spacing: float, rows, cols):
     return out
 
 
-def displace_batch(profile, fidelity, depth_mm, contact_mask, *, shear_mm=None, twist_deg=None, rest=None, seed: int = 0):
+def displace_batch(profile, fidelity, depth_mm, contact_mask, *, shear_mm=None, twist_deg=None, rest=None,
+                   seed: int = 0):
     """Markers moved by the gel for ``B`` imprints on the device (:func:`gelsim.markers.displace`).
 
-    depth_mm: float32 ``(B, H, W)`` mm and contact_mask bool ``(B, H, W)`` (an :class:`~gelsim.device.imprint.ImprintBatch`'s);
-    shear_mm: float ``(B, 2)`` (x, y) mm; twist_deg: float ``(B,)`` degrees; rest: float ``(N, 2)`` or ``(B, N, 2)``
+    depth_mm: float32 ``(B, H, W)`` mm and contact_mask bool ``(B, H, W)`` (an
+    :class:`~gelsim.device.imprint.ImprintBatch`'s); shear_mm: float ``(B, 2)`` (x, y) mm; twist_deg: float ``(B,)`` degrees; rest: float ``(N, 2)`` or ``(B, N, 2)``
     px rest centres (default :func:`gelsim.markers.marker_grid` with ``seed``).
     Returns (centres float32 ``(B, N, 2)``, corners float32 ``(B, N, 4, 2)``) px, tensors on the imprints' device.
     """
@@ -107,8 +108,6 @@ def displace_batch(profile, fidelity, depth_mm, contact_mask, *, shear_mm=None, 
     if nmk == 0:
         z = torch.zeros((bsz, 0, 2), device=dev)
         return z, torch.zeros((bsz, 0, 4, 2), device=dev)
-    gel = profile.gel
-    mmpp = profile.image.mm_per_px
     nz = (depth_mm > 0) | contact_mask
     box = ops.bbox(nz).cpu().numpy()          # (r0, r1, c0, c1)
     live = [b for b in range(bsz) if box[b][1] > box[b][0]]
@@ -165,7 +164,7 @@ def _displace_live(profile, fid, depth_mm, contact_mask, box, live, shear, twist
     xx = torch.arange(WC, device=dev)[None, None, :]
     own = (yy < hc_t[:, None, None]) & (xx < wc_t[:, None, None])
     cells = torch.where(own[:, None], cells, 0.0)
-    depth_c, mask_c = cells[:, 0], cells[:, 1]
+    mask_c = cells[:, 1]
     amp = 3.0 / (2.0 * gel.thickness_mm)
     if fid.marker_model == "elastic":
         pad = int(math.ceil(3 * ell))

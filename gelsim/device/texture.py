@@ -151,13 +151,12 @@ def texture_depth(surface, env, ny, nx, pressure_cells, scale: TextureScale, gel
     bsz = surface.shape[0]
     dx = scale.dx
     fs, half, unit, sigma, blurred, k = scale.fs, scale.half, scale.unit, scale.sigma, scale.blurred, scale.k
-    tex = scale.tex
     NYb = ny + (-ny) % unit                     # each frame's padded size, whole cells
     NXb = nx + (-nx) % unit
     NY, NX = int(NYb.max()), int(NXb.max())
     t = surface[:, :NY, :NX] - env[:, :NY, :NX]
     rows, cols = NYb // fs, NXb // fs
-    R, C = NY // fs, NX // fs
+    C = NX // fs
     if blurred:
         from ..optics.torch_backend import gaussian
 
@@ -185,8 +184,9 @@ def texture_depth(surface, env, ny, nx, pressure_cells, scale: TextureScale, gel
             yarn[b] = 1.0 / sup.yarn_stiffness_mpa_per_mm
             if math.isfinite(cloth_mpa_per_mm[b]):
                 has_cloth[b], cloth_k[b], ell[b] = True, cloth_mpa_per_mm[b], sup.shear_length_mm
-    sh_args = (e_star / 2.0, ops.as_float(yarn, dev)[:, None, None], torch.as_tensor(has_cloth, device=dev)[:, None, None],
-               ops.as_float(cloth_k, dev)[:, None, None], ops.as_float(ell, dev)[:, None, None])
+    sh_args = (e_star / 2.0, ops.as_float(yarn, dev)[:, None, None],
+               torch.as_tensor(has_cloth, device=dev)[:, None, None], ops.as_float(cloth_k, dev)[:, None, None],
+               ops.as_float(ell, dev)[:, None, None])
     tables = _tables(dev)
 
     # The band's statistics from the cells' moments (kernels.moment_sums, band_cells)
@@ -257,8 +257,8 @@ def texture_depth(surface, env, ny, nx, pressure_cells, scale: TextureScale, gel
         qf = torch.clamp(torch.sqrt(gg / v), q_lo, math.pi / dx)
         shf = _share(qf, *sh_args)
         crown_p = p_small / torch.clamp(phi, min=tk.PHI_FLOOR)
-        ps = torch.clamp(crown_p / ((e_star / 4.0) * qf * torch.clamp(4.0 * torch.sqrt(v) * shf, min=tk.DEPTH_FLOOR_MM)),
-                         max=ts.S_MAX)
+        depth_f = torch.clamp(4.0 * torch.sqrt(v) * shf, min=tk.DEPTH_FLOOR_MM)
+        ps = torch.clamp(crown_p / ((e_star / 4.0) * qf * depth_f), max=ts.S_MAX)
         kept_f = read_table(ps, torch.zeros_like(ps), KEPT, tables) * shf
     # kernels.press_texture
     below = torch.clamp(te + px(cut), max=0.0)
