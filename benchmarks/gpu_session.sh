@@ -61,7 +61,7 @@ $PY -c "import gelsim, gelsim.device.imprint, gelsim.mujoco" || { echo "imports 
 if [ "$SMALL" = 1 ]; then
   RESOLUTIONS="160x120"; BATCH=4; DISTINCT=2; FRAMES=5; SENSORS="1,4"; SEQ=2; REPS=1
 else
-  RESOLUTIONS="320x240,960x720"; BATCH=64; DISTINCT=8; FRAMES=10; SENSORS="1,16,256,1024,4096"; SEQ=5; REPS=2
+  RESOLUTIONS="320x240,960x720"; BATCH=64; DISTINCT=8; FRAMES=8; SENSORS="1,16,256,1024,4096"; SEQ=5; REPS=2
 fi
 
 echo "== tests on $DEV ($((SECONDS - START)) s)"
