@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from ..errors import GelsimError
-from ..markers import _CELLS_PER_THICKNESS, _corners, _screen_multiplier
+from ..markers import _CELLS_PER_THICKNESS, _corners, _screen_multiplier, field_window
 from . import ops
 
 #: Marker positions (centres and corners) of the device path within this of the numpy path's, px, given the same
@@ -130,21 +130,9 @@ def _displace_live(profile, fid, depth_mm, contact_mask, box, live, shear, twist
     f = max(1, int(round(gel.thickness_mm / _CELLS_PER_THICKNESS / mmpp)))
     wins = []
     for b in live:
-        by, bh = int(box[b][0]), int(box[b][1] - box[b][0])
-        bx, bw = int(box[b][2]), int(box[b][3] - box[b][2])
-        ff = f
-        cell_mm = ff * mmpp
-        ell = gel.thickness_mm / cell_mm
-        margin = int(math.ceil(4 * ell)) * ff
-        r0 = max(0, (by - margin) // ff * ff)
-        c0 = max(0, (bx - margin) // ff * ff)
-        hc = max(2, (min(h, by + bh + margin) - r0) // ff)
-        wc = max(2, (min(w, bx + bw + margin) - c0) // ff)
-        while r0 + hc * ff > h:
-            hc -= 1
-        while c0 + wc * ff > w:
-            wc -= 1
-        if hc < 2 or wc < 2:
+        fb, r0, c0, hc, wc = field_window(profile, (int(box[b][2]), int(box[b][0]), int(box[b][3] - box[b][2]),
+                                                    int(box[b][1] - box[b][0])))
+        if fb != f:   # (the numpy path's fallback to pixel cells, for an image a few cells across)
             raise GelsimError(f"the image ({w}x{h} px) is too small for the device markers' fields; use the numpy "
                               "path (gelsim.markers.displace)")
         wins.append((r0, c0, hc, wc))
