@@ -20,12 +20,12 @@ from pathlib import Path
 from typing import Literal
 
 from gelsim.errors import GelsimError
-from gelsim.params import build, load_toml, param
+from gelsim.params import build, load_toml, package_dir, param
 
 from .data import DEFAULT_ONSET_THRESHOLD
 from .errors import StamError
 
-CONFIG_DIR = Path(__file__).parent / "configs"
+CONFIG_DIR = package_dir("stam", "configs")
 # Without a GPU, `stam train` with no --preset uses the cpu preset: the library defaults (full
 # AlexNet from scratch at 224 px) take about 2 minutes an epoch on 2 cores and stay at chance for
 # the first epochs; with one, the paper preset (the paper's setting).

@@ -40,7 +40,7 @@ def register(sub) -> None:
     p.add_argument("--frames", metavar="MIN-MAX", help="frames per sequence, pre-contact included [default: 25-36]")
     p.add_argument("--precontact", metavar="MIN-MAX",
                    help="pre-contact frames per sequence (sensor approaching, nothing touching), uniform in the "
-                        "range [default: assets/motions.toml's mixture: 0-1 frames, and 6-12 for 20%% of sequences, "
+                        "range [default: gelsim/assets/motions.toml's mixture: 0-1 frames, and 6-12 for 20%% of sequences, "
                         "as the paper's Table II implies]")
     p.add_argument("--profile", metavar="NAME|PATH", help="sensor profile [default: vitac, 960x720]")
     p.add_argument("--resolution", metavar="WxH", help="render at this size, same field of view in mm [default: the profile's]")

@@ -4,7 +4,7 @@ Theory (gelsim/gel/johnson.py): a rigid wave z = h cos(2 pi x / L) (1-D) or
 h cos(2 pi x / L) cos(2 pi y / L) (2-D) on the gel at mean pressure p comes into complete contact
 at p* = pi E* h / L (1-D) or sqrt(2) pi E* h / L (2-D); below it the 1-D contact covers
 (2/pi) asin(sqrt(p/p*)) of the surface and the gel keeps s (2 - s) of the wave's fundamental,
-s = p / p*; the 2-D values are the exact periodic solutions in assets/johnson.toml, checked here
+s = p / p*; the 2-D values are the exact periodic solutions in gelsim/assets/johnson.toml, checked here
 against the two limits Johnson, Greenwood and Higginson give (complete contact at p*, a Hertz
 contact per crown at light load).
 
@@ -62,7 +62,7 @@ def test_closed_forms_match_the_exact_periodic_solution(s):
 
 
 def test_tables_reproduce_from_the_solver():
-    # A few rows of assets/johnson.toml, refitted on a coarser grid: the file is what the tool writes.
+    # A few rows of gelsim/assets/johnson.toml, refitted on a coarser grid: the file is what the tool writes.
     tabs = johnson.map_tables()
     for kind, n in (("1d", 512), ("2d", 64)):
         t = tabs[kind]
