@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from gelsim.cli import HelpFormatter, dispatch, print_json, print_result
+from gelsim.cli import ArgumentParser, HelpFormatter, dispatch, print_json, print_result
 
 from . import __version__
 
@@ -203,7 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .data import DEFAULT_ONSET_THRESHOLD
     from .models import MODEL_NAMES
 
-    p = argparse.ArgumentParser(prog="stam", formatter_class=HelpFormatter,
+    p = ArgumentParser(prog="stam", formatter_class=HelpFormatter,
                                 description="STAM tactile texture recognition (Cao et al., IROS 2020) on gelsim datasets.")
     p.add_argument("--version", action="version", version=f"stam {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")

@@ -43,6 +43,16 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescript
         return super()._get_help_string(action)
 
 
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with the CLI's error contract: a bad option (an unknown one, a bad number or choice, a
+    missing required one) is one line ``PROG: error: <problem>; see `PROG --help``` on stderr and
+    status 2, without argparse's usage block. Sub-command parsers inherit it."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"{self.prog}: error: {message}; see `{self.prog} --help`", file=sys.stderr)
+        sys.exit(2)
+
+
 def print_json(obj) -> None:
     """Write one JSON document to stdout (the ``--json`` contract of every command)."""
     json.dump(obj, sys.stdout, indent=2, default=json_default)
@@ -61,7 +71,7 @@ def print_result(as_json: bool, doc, *lines: str) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="gelsim",
         description="GelSight tactile simulator and synthetic dataset generator.",
         formatter_class=HelpFormatter,
