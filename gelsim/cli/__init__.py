@@ -70,6 +70,20 @@ def print_result(as_json: bool, doc, *lines: str) -> int:
     return 0
 
 
+def warn(prog: str, message: str) -> None:
+    """One line ``PROG: warning: <message>`` on stderr: the result was made, but not as asked."""
+    print(f"{prog}: warning: {message}", file=sys.stderr)
+
+
+def warn_if_bottomed(prog: str, bottomed: bool, carried_n: float, asked_n: float | None) -> None:
+    """Out-of-range physics said on stderr, not only in ``--json``: the pad reached its full travel."""
+    if not bottomed:
+        return
+    asked = "" if asked_n is None else f" of the {asked_n:g} N asked"
+    warn(prog, f"the gel bottomed out (pressed to its full travel) and carries {carried_n:.3g} N{asked}; "
+               "ask for less force or depth to stay within the gel's range")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(
         prog="gelsim",
