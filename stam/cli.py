@@ -78,16 +78,18 @@ def _pretrain(args) -> int:
 
 
 def _train(args) -> int:
+    from .ranks import one_line_per_rank
     from .train import run_train
 
     overrides = {"model": args.model, "frames": args.frames, "start": args.start, "epochs": args.epochs,
                  "seed": args.seed}
     if args.quiet or args.json:
         overrides["progress"] = False
-    res = run_train(args.data, args.out, preset=args.preset, overrides=overrides, sets=args.set,
-                    pretrained=args.pretrained, resume=args.resume, dry_run=args.dry_run,
-                    log=None if args.json or args.quiet else print,
-                    note=None if args.quiet else (lambda m: print(m, file=sys.stderr)))
+    with one_line_per_rank():   # under torchrun: every rank's stop is one line
+        res = run_train(args.data, args.out, preset=args.preset, overrides=overrides, sets=args.set,
+                        pretrained=args.pretrained, resume=args.resume, dry_run=args.dry_run,
+                        log=None if args.json or args.quiet else print,
+                        note=None if args.quiet else (lambda m: print(m, file=sys.stderr)))
     if res.get("rank", 0):
         return 0  # under torchrun, rank 0 reports for the job
     if args.json:
