@@ -12,7 +12,7 @@ scene and in the grasp example's scene. The geometry stage is also timed the oth
 allows: a depth image of the same grid from MuJoCo's OpenGL renderer (``mujoco.Renderer``), when a
 headless GL context can be made.
 
-TACTO's per-frame cost is the README's peers table (benchmarks/peers, sphere scene, one core):
+TACTO's per-frame cost is docs/performance.md's peers table (benchmarks/peers, sphere scene, one core):
 189-268 ms at 960x720 and 112-122 ms at 640x480.
 
     .venv/bin/python benchmarks/bench_mujoco_sensor.py [--reps 60] [--profile gelsight-mini] [--threads 1|none] [--json]
@@ -37,7 +37,7 @@ import numpy as np  # noqa: E402
 from gelsim.mujoco import GelSightSensor  # noqa: E402
 from gelsim.mujoco.grasp import build_grasp_scene, press_scene  # noqa: E402
 
-# TACTO, sphere scene, one core, ms per frame: the README's peers table (the under-load and the idle runs).
+# TACTO, sphere scene, one core, ms per frame: docs/performance.md's peers table (the under-load and the idle runs).
 TACTO_MS = {(960, 720): (189.0, 268.0), (640, 480): (112.0, 122.0)}
 TARGET_320_MS = 5.0
 TARGET_SPEEDUP = 10.0

@@ -26,7 +26,7 @@ def register(sub) -> None:
             "         cpu   = 100 fabrics x 20 sequences at 320x240, balanced, split 7:2:11 (sized for\n"
             "                 `stam experiment --preset cpu`: 1,100 test sequences resolve a few points;\n"
             "                 13 min on 2 cores). With --resolution 960x720, the camera's own frames: about\n"
-            "                 2.5x the time, and every Tables I/II cell 11-19 points higher (README).\n"
+            "                 2.5x the time, and every Tables I/II cell 11-19 points higher (docs/stam_results.md).\n"
             "Options given with a preset override it."),
     )
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (new, empty, or a dataset to resume)")

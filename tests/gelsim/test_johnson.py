@@ -113,7 +113,7 @@ def test_wave_follows_johnson(level, kind, wavelength, s):
 # and the reference do (its texture scale is capped at the thickness, where the crown envelope and the
 # layer's response overlap); and the fast level, at half resolution, works a 0.2 mm 2-D wave on 12 px
 # per period: at s = 0.11 it keeps 0.41 of it against theory's 0.34. Strict: a case that starts to
-# pass is news, and the count in the README changes with it.
+# pass is news, and the count in docs/physics.md changes with it.
 KNOWN = {("1d", 2.0, 0.2, "balanced"): "two-scale model at L = gel thickness, light load",
          ("1d", 2.0, 0.05, "fast"): "two-scale model at L = gel thickness, light load",
          ("2d", 0.2, 0.2, "fast"): "fast level: 12 px per period of a 0.2 mm wave at half resolution"}

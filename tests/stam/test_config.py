@@ -138,7 +138,7 @@ def load_checkpoint_epoch(path):
 
 @pytest.mark.slow
 def test_paper_preset_commands_run_on_a_tiny_dataset(tmp_path, capsys):
-    """The GPU run's commands (README, "Rendering on a GPU"), at toy size on the CPU: the dataset rendered by
+    """The GPU run's commands (docs/performance.md, "Rendering in batches, on a GPU"), at toy size on the CPU: the dataset rendered by
     the torch backend in batches, then one epoch of the paper preset's model (full AlexNet at 224 px,
     fine-tuned end to end) on it. About 20 s on 2 cores, mostly the 58 M-parameter model."""
     from gelsim.cli import main as gelsim_main
