@@ -1,5 +1,6 @@
-"""Preview images of a generated dataset: a frame strip per action, a contact sheet of the fabrics and
-a sheet of press, slip and twist frames across families (:func:`action_sheet`)."""
+"""Preview images of a generated dataset: a frame strip per action, a contact sheet of the fabrics, the
+first look (:mod:`gelsim.firstlook`) and a sheet of press, slip and twist frames across families
+(:func:`action_sheet`)."""
 from __future__ import annotations
 
 import math
@@ -10,6 +11,7 @@ import numpy as np
 
 from .atomic import write_png
 from .errors import GelsimError
+from .firstlook import write_first_look
 from .schema import ACTIONS, PREVIEWS_DIR
 from .video import read_video
 
@@ -87,6 +89,7 @@ def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Pa
             p = out_dir / f"{sheet}.png"
             write_png(p, _grid(parts, min(10, len(parts))))
             written.append(p)
+    written += write_first_look(out_dir, manifest)   # the fabrics at 960x720 and what the contact changed
     return written
 
 

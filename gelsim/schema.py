@@ -3,7 +3,7 @@
 Its writers (:mod:`gelsim.dataset`, ``stam.synthetic``), its verifier (:func:`gelsim.dataset.verify`)
 and its readers (:mod:`gelsim.dataset`, :mod:`gelsim.stats`, ``stam.data``) take the format's name and
 version, the action and split names, the paths inside a dataset, the manifest's fields and the label
-keys from here. The README's "Layout" section documents the same; ``tests/gelsim/test_schema.py``
+keys from here. docs/dataset.md's "Layout" section documents the same; ``tests/gelsim/test_schema.py``
 checks that the two agree.
 
 Layout of a dataset directory ``DIR``::

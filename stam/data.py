@@ -8,7 +8,9 @@ action and contact_onset when present). Videos are read with :func:`gelsim.video
 
 Decoded frames are resized (squashed) to ``S x S`` px with area averaging and cached as
 ``uint8 (T, S, S, 3)`` ``.npy`` files under ``DIR/.stam-cache/`` (or a user cache directory
-when DIR is read-only), written atomically, so that only the first pass decodes video.
+when DIR is read-only), written atomically, so that only the first pass decodes video. A cache
+file's name holds the sequence id and :meth:`TactileDataset.cache_key` (the video's checksum, size
+and modification time), so a video changed since is decoded again.
 Beside them per-frame contact scores (``float32 (T, 2)``) and the sequence's noise level are
 cached (``.npz``) for onset detection.
 """
@@ -253,6 +255,7 @@ class TactileDataset:
                      s.get("contact_onset"), self.dir / s["video"])
             for s in self.manifest["sequences"]]
         self.cache_dir = Path(cache_dir) if cache_dir else default_cache_dir(self.dir)
+        self._video_sha = {s["id"]: str((s.get("sha256") or {}).get("video", "")) for s in self.manifest["sequences"]}
 
     @property
     def num_classes(self) -> int:
@@ -262,19 +265,36 @@ class TactileDataset:
         check_choice("split", name, SPLITS, StamError)
         return [s for s in self.sequences if s.split == name]
 
+    def cache_key(self, seq: Sequence) -> str:
+        """What ``seq``'s cached frames and scores were made from: the manifest's checksum of its video and
+        the video's size and modification time (ns; for a directory of PNGs, over its files), hashed to 16
+        hex digits. A video regenerated or copied over since gets another key, so its stale cache is not
+        read (the cache was keyed by the sequence id alone)."""
+        v = seq.video
+        try:
+            if v.is_dir():
+                stats = [f.stat() for f in sorted(v.iterdir())]
+                size, mtime = sum(st.st_size for st in stats), max((st.st_mtime_ns for st in stats), default=0)
+            else:
+                st = v.stat()
+                size, mtime = st.st_size, st.st_mtime_ns
+        except FileNotFoundError:
+            raise StamError(f"video {v} listed in the manifest is missing; regenerate the dataset") from None
+        text = f"{self._video_sha.get(seq.id, '')}:{size}:{mtime}"
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
     def _paths(self, seq: Sequence, size: int) -> tuple[Path, Path]:
         d = self.cache_dir / (f"{size}px" if self.crop == 1.0 else f"{size}px-crop{self.crop:g}")
-        return d / f"{seq.id}.npy", self.cache_dir / "scores-v4" / f"{seq.id}.npz"
+        key = f"{seq.id}-{self.cache_key(seq)}"
+        return d / f"{key}.npy", self.cache_dir / "scores-v4" / f"{key}.npz"
 
     def prepare(self, seq: Sequence, size: int) -> None:
         """Decode ``seq`` once and cache its resized frames and contact scores."""
-        fpath, spath = self._paths(seq, size)
+        fpath, spath = self._paths(seq, size)   # (a missing video is said here)
         if fpath.is_file() and spath.is_file():
             return
         from gelsim.video import read_video
 
-        if not seq.video.exists():
-            raise StamError(f"video {seq.video} listed in the manifest is missing; regenerate the dataset")
         frames = read_video(seq.video)
         if frames.shape[0] < 1:
             raise StamError(f"video {seq.video} has no frames; regenerate the dataset")

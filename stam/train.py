@@ -33,7 +33,7 @@ from gelsim.atomic import atomic_open, atomic_write_text
 
 from . import models
 from .backbone import AlexNet, feature_size, fold_batchnorm
-from .config import TrainConfig, default_preset, load_preset, parse_sets, resolve_train
+from .config import TrainConfig, default_preset, describe_run, load_preset, parse_sets, resolve_train
 from .data import DEFAULT_ONSET_THRESHOLD, FrameDataset, TactileDataset, WindowDataset, backbone_features
 from .errors import StamError
 
@@ -449,7 +449,7 @@ def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict
             log = note = None
     if chosen is not None and note:
         why = "no CUDA device" if chosen != "paper" else "a CUDA device is available"
-        note(f"stam train: no --preset given and {why}: using the {chosen} preset: {p.describe()}; "
+        note(f"stam train: no --preset given and {why}: using the {chosen} preset: {describe_run(cfg, plan)}; "
              "see `stam train --help`")
     dataset = TactileDataset(cfg.data, cfg.cache_dir or None, crop=cfg.crop)
     shortest = min(s.num_frames for s in dataset.sequences)

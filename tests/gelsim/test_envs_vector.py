@@ -59,9 +59,7 @@ def test_physics_and_forces_are_graspenvs():
 
 
 def test_make_vec_through_a_vector_entry_point():
-    gym.register(id="gelsim-test/GraspVector-v0", entry_point="gelsim.envs.grasp:GraspEnv",
-                 vector_entry_point="gelsim.envs.vector:GraspVectorEnv")
-    env = gym.make_vec("gelsim-test/GraspVector-v0", num_envs=2, vectorization_mode="vector_entry_point",
+    env = gym.make_vec("gelsim/GraspBatched-v0", num_envs=2, vectorization_mode="vector_entry_point",
                        object="bolt", max_steps=5)
     obs, _ = env.reset(seed=3)
     assert obs["tactile_right"].shape == (2, 48, 64, 3)
