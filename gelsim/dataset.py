@@ -31,7 +31,7 @@ from . import schema
 from .atomic import atomic_write_json, atomic_write_npz
 from .errors import GelsimError
 from .provenance import source_digest
-from .schema import ACTIONS, SPLITS, sha256_of
+from .schema import ACTIONS, SPLITS, load_manifest, sha256_of  # noqa: F401 (load_manifest: for callers)
 
 SPLIT_WEIGHTS = (7.0, 2.0, 1.0)  # the paper's 7:2:1 split, by sequence (the default of --split)
 # Bytes per pixel per frame of each format at 960x720, measured on generated sequences
@@ -264,23 +264,6 @@ def unit_profiles(config: GenerateConfig, profile) -> list:
 
 
 # ---------------------------------------------------------------- files
-
-def load_manifest(root: str | Path) -> dict:
-    """The manifest of the dataset under ``root``, checked to be this format and version."""
-    root = Path(root)
-    mpath = root / schema.MANIFEST
-    if not mpath.exists():
-        raise GelsimError(f"{root} is not a gelsim dataset (no {schema.MANIFEST}); give a directory made by "
-                          "gelsim generate")
-    try:
-        m = json.loads(mpath.read_text())
-    except json.JSONDecodeError as e:
-        raise GelsimError(f"{mpath} is not valid JSON ({e}); regenerate the dataset") from None
-    problem = schema.manifest_problem(m)
-    if problem:
-        raise GelsimError(f"{root}: {problem}; give a directory made by this version of gelsim generate")
-    return m
-
 
 class StaleOutput(GelsimError):
     """``--out`` holds a gelsim dataset that this code cannot resume: made with other options, library
