@@ -68,7 +68,8 @@ from .metrics import psnr, ssim_map
 from .motion import ACTIONS, Motion, sample_motion
 from .provenance import source_digest
 from .sensor import SensorProfile, load_profile
-from .sequence import SequenceOutput, render_sequence
+from .sequence import SequenceOptions, render_sequence
+from .sinks import ImprintCapture, KeepFrames, VideoSink, drain
 from .texture import RIM_SIGMAS, Band, band_for, band_rms, contact_region, pitches_mm, texture_frames
 
 STAGES = ("fabric", "physics", "imprint", "markers", "optics", "encode")
@@ -346,30 +347,6 @@ def _prepare(scene: Scene, motion: Motion, profile: SensorProfile, catalog):
     return obj, physics_surface(obj, motion, profile, seed=scene.seed)
 
 
-@contextlib.contextmanager
-def _recording_imprints():
-    """Record every Imprint that :func:`gelsim.sequence.render_sequence` computes, in call order.
-
-    The sequence yields frames and labels, not the gel's depth map and contact mask that the texture
-    metrics need; recording its calls to ``press`` gets them without computing them twice (the
-    reference's take seconds). Single-threaded use only (the bench's)."""
-    from . import sequence
-
-    log: list = []
-    original = sequence.press
-
-    def press(*args, **kwargs):
-        imprint = original(*args, **kwargs)
-        log.append(imprint)
-        return imprint
-
-    sequence.press = press
-    try:
-        yield log
-    finally:
-        sequence.press = original
-
-
 def run_level(scene: Scene, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *, catalog,
               renderer=None, contact: ContactFrames | None = None, shortcuts: bool = True,
               outputs=("frames", "imprint", "markers"), encode: str | None = "h264",
@@ -377,8 +354,8 @@ def run_level(scene: Scene, motion: Motion, profile: SensorProfile, fidelity: Fi
     """Run ``fidelity`` on one scene: its own physics (timed; gives its forces), then imprint,
     markers and optics on ``contact`` (default: its own), then encoding to a throw-away video.
     Frames are kept for comparison; with ``keep_imprints`` also the imprint of every frame that
-    pressed (``LevelRun.imprints``)."""
-    from .video import VideoWriter, video_path
+    pressed (``LevelRun.imprints``, an :class:`gelsim.sinks.ImprintCapture` of the sequence's records)."""
+    from .video import video_path
 
     c0, w0, th0 = time.process_time(), time.perf_counter(), _stage_clock()
     t0 = th0
@@ -388,49 +365,31 @@ def run_level(scene: Scene, motion: Motion, profile: SensorProfile, fidelity: Fi
     own = simulate(motion, surface, profile, fidelity)
     phys_s = _stage_clock() - t0
     use = contact if contact is not None else own
-    out = SequenceOutput({}, {})
-    frames = []
-    enc_s = 0.0
-    with contextlib.ExitStack() as stack:
-        log = stack.enter_context(_recording_imprints()) if keep_imprints else None
-        gen = render_sequence(obj, motion, profile, fidelity, seed=scene.seed, renderer=renderer,
-                              sensor_seed=sensor_seed, out=out, shortcuts=shortcuts, outputs=outputs,
+    frames, capture = KeepFrames(), ImprintCapture()
+    sinks: list = [frames, capture] if keep_imprints else [frames]
+    options = SequenceOptions(renderer=renderer, sensor_seed=sensor_seed, shortcuts=shortcuts, outputs=outputs,
                               contact=use, surface=surface)
+    with contextlib.ExitStack() as stack:
         if encode and "frames" in outputs:
             td = stack.enter_context(tempfile.TemporaryDirectory(dir=tmpdir))
-            with VideoWriter(video_path(Path(td) / "bench", encode), fmt=encode,
-                             fps=profile.image.fps_hz) as writer:
-                for frame in gen:
-                    te = _stage_clock()
-                    writer.write(frame)
-                    enc_s += _stage_clock() - te
-                    frames.append(frame)
-                te = _stage_clock()
-            enc_s += _stage_clock() - te  # closing flushes the encoder
-        else:
-            frames = [f for f in gen]
+            sinks.insert(0, stack.enter_context(VideoSink(video_path(Path(td) / "bench", encode), fmt=encode,
+                                                          fps=profile.image.fps_hz)))
+        labels, seconds = drain(render_sequence(obj, motion, profile, fidelity, seed=scene.seed, options=options),
+                                sinks)
     secs = {s: 0.0 for s in STAGES}
-    secs.update(out.timings_s)
+    secs.update(seconds)
     secs["fabric"] += fab_s
     secs["physics"] = phys_s
-    secs["encode"] = enc_s
     # CPU of the process's other threads: OpenGL's (llvmpipe) under pyrender, which the main
     # thread's clock does not see; the encoder and OpenCV run on the main thread (one core). Only
     # when frames were rendered: idle threads of other libraries (a torch pool) tick otherwise.
     if "frames" in outputs:
         secs["optics"] += max(0.0, (time.process_time() - c0) - (_stage_clock() - th0))
-    labels = dict(out.labels)
     labels["normal_force_n"] = own.normal_force_n  # this level's own physics
-    fr = np.stack(frames) if frames and frames[0] is not None else None
+    fr = np.stack(frames.frames) if frames.frames and frames.frames[0] is not None else None
     run = LevelRun(fr, labels, use, secs, time.process_time() - c0, time.perf_counter() - w0)
-    if log is not None:
-        # render_sequence presses the frames in contact with a force (every frame without shortcuts)
-        pressed = np.arange(motion.num_frames) if not shortcuts else \
-            np.flatnonzero(np.asarray(use.in_contact, bool) & (np.asarray(use.normal_force_n) > 0))
-        if len(log) != len(pressed):
-            raise RuntimeError(f"recorded {len(log)} imprints for {len(pressed)} pressed frames: "
-                               "gelsim.sequence no longer presses through its module's `press`")
-        run.imprints = {int(i): (im.depth_mm, im.contact_mask) for i, im in zip(pressed, log)}
+    if keep_imprints:
+        run.imprints = capture.imprints
     return run
 
 
