@@ -107,9 +107,9 @@ class RunCache:
 
 
 def measured_run(scene: Scene, motion: Motion, profile: SensorProfile, fid: Fidelity, *, catalog, renderer,
-                  contact: ContactFrames | None, config: BenchConfig, yardstick: SceneTexture | None = None,
-                  cache: RunCache | None = None, encode: str | None = None, shader=None,
-                  outputs=("frames", "imprint", "markers")) -> tuple[LevelRun, SceneTexture | None]:
+                 contact: ContactFrames | None, config: BenchConfig, yardstick: SceneTexture | None = None,
+                 cache: RunCache | None = None, encode: str | None = None, shader=None,
+                 outputs=("frames", "imprint", "markers")) -> tuple[LevelRun, SceneTexture | None]:
     """``run_level`` with the texture measured (``yardstick`` None: this run is the yardstick, read
     from and written to ``cache``; a cached run whose texture lacks a measure is measured again from
     its stored imprints). ``shader``: see :func:`measure_texture`. Outputs without frames: no

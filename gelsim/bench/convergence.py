@@ -95,9 +95,9 @@ def run_convergence(config: BenchConfig = BenchConfig(), base: str = "balanced",
                         contacts[sc.name] = simulate(motion, surf, profile, base_fid)
                     y = yard.get(sc.name)
                     run, tex = measured_run(sc, motion, profile, fid, catalog=catalog, renderer=renderer,
-                                             contact=None if physics_only else contacts[sc.name], config=config,
-                                             yardstick=None if y is None else y[1],
-                                             cache=cache if y is None else None, outputs=outputs, shader=shader)
+                                            contact=None if physics_only else contacts[sc.name], config=config,
+                                            yardstick=None if y is None else y[1],
+                                            cache=cache if y is None else None, outputs=outputs, shader=shader)
                     if y is None:
                         yard[sc.name] = y = (run, tex)
                     sacc = ErrorAcc()

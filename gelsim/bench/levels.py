@@ -59,10 +59,10 @@ def run_bench(config: BenchConfig = BenchConfig(), progress: Callable[[str], Non
                 motion = scene_motion(sc, config)
                 ref = ref_runs.get(sc.name)
                 run, tex = measured_run(sc, motion, profile, fid, catalog=catalog, renderer=renderer,
-                                         contact=None if ref is None else ref[0].contact, config=config,
-                                         yardstick=None if ref is None else ref[1],
-                                         cache=cache if ref is None else None, encode=config.video_format,
-                                         shader=shader)
+                                        contact=None if ref is None else ref[0].contact, config=config,
+                                        yardstick=None if ref is None else ref[1],
+                                        cache=cache if ref is None else None, encode=config.video_format,
+                                        shader=shader)
                 if ref is None:
                     ref_runs[sc.name] = ref = (run, tex)
                 sacc = ErrorAcc()

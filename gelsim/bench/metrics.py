@@ -29,53 +29,55 @@ def rounded(v, n: int):
 
 
 @dataclass
+class Mean:
+    """A running mean: ``total`` over ``n`` (:meth:`mean`: ``empty`` while nothing was added)."""
+    total: float = 0.0
+    n: int = 0
+
+    def add(self, total: float, n: int = 1) -> None:
+        self.total += total
+        self.n += n
+
+    def mean(self, empty: float | None = None) -> float | None:
+        return self.total / self.n if self.n else empty
+
+
+@dataclass
 class ErrorAcc:
-    """Pools errors over frames and scenes: image L1, squared error and SSIM, marker distances (all
-    markers, and those in the reference's contact), forces, relative contact-area errors, and the
-    texture's band RMS per scene (sums of squares of the level's and the reference's gel relief,
-    mm^2, image texture through each one's renderer and through the fast shader, DN^2)."""
-    l1_sum: float = 0.0
-    se_sum: float = 0.0
-    px: int = 0
-    ssim_sum: float = 0.0
-    frames: int = 0
-    marker_sum_mm: float = 0.0
-    marker_n: int = 0
-    contact_marker_sum_mm: float = 0.0
-    contact_marker_n: int = 0
-    force_sum_n: float = 0.0
-    force_n: int = 0
-    area_rel_sum: float = 0.0
-    area_n: int = 0
+    """Pools errors over frames and scenes: image L1 and squared error (per pixel and channel) and SSIM
+    (per frame), marker distances (mm; all markers, and those in the reference's contact), forces (N, per
+    frame), relative contact-area errors, and the texture's band RMS per scene (sums of squares of the
+    level's and the reference's gel relief, mm^2, image texture through each one's renderer and through
+    the fast shader, DN^2)."""
+    l1_dn: Mean = field(default_factory=Mean)
+    se_dn2: Mean = field(default_factory=Mean)
+    ssims: Mean = field(default_factory=Mean)
+    markers_mm: Mean = field(default_factory=Mean)
+    contact_markers_mm: Mean = field(default_factory=Mean)
+    force_n: Mean = field(default_factory=Mean)
+    area_rel: Mean = field(default_factory=Mean)
     texture: dict = field(default_factory=dict)  # scene -> sums [gel^2, ref, img^2, ref, fast img^2, ref]
 
     def add_frame(self, a: np.ndarray, ref: np.ndarray) -> None:
         d = a.astype(np.float64) - ref.astype(np.float64)
-        self.l1_sum += float(np.abs(d).sum())
-        self.se_sum += float((d * d).sum())
-        self.px += d.size
-        self.ssim_sum += ssim(a, ref)
-        self.frames += 1
+        self.l1_dn.add(float(np.abs(d).sum()), d.size)
+        self.se_dn2.add(float((d * d).sum()), d.size)
+        self.ssims.add(ssim(a, ref))
 
     def add_markers(self, xy: np.ndarray, ref: np.ndarray, mm_per_px: float) -> None:
-        if xy.size:
-            self.marker_sum_mm += float(np.linalg.norm(xy - ref, axis=-1).sum()) * mm_per_px
-            self.marker_n += int(np.prod(xy.shape[:-1]))
+        """Marker centres (..., 2) px and the reference's."""
+        _add_distances(self.markers_mm, xy, ref, mm_per_px)
 
     def add_contact_markers(self, xy: np.ndarray, ref: np.ndarray, mm_per_px: float) -> None:
         """Markers (N, 2) px inside the reference's contact patch, and the reference's."""
-        if xy.size:
-            self.contact_marker_sum_mm += float(np.linalg.norm(xy - ref, axis=-1).sum()) * mm_per_px
-            self.contact_marker_n += int(np.prod(xy.shape[:-1]))
+        _add_distances(self.contact_markers_mm, xy, ref, mm_per_px)
 
     def add_forces(self, f: np.ndarray, ref: np.ndarray) -> None:
-        self.force_sum_n += float(np.abs(np.asarray(f, np.float64) - ref).sum())
-        self.force_n += len(f)
+        self.force_n.add(float(np.abs(np.asarray(f, np.float64) - ref).sum()), len(f))
 
     def add_area(self, area_mm2: float, ref_mm2: float) -> None:
         if ref_mm2 > 0:
-            self.area_rel_sum += abs(float(area_mm2) - float(ref_mm2)) / float(ref_mm2)
-            self.area_n += 1
+            self.area_rel.add(abs(float(area_mm2) - float(ref_mm2)) / float(ref_mm2))
 
     def add_texture(self, scene: str, gel: float, ref_gel: float, img: float, ref_img: float,
                     img_fast: float = math.nan, ref_img_fast: float = math.nan) -> None:
@@ -98,15 +100,13 @@ class ErrorAcc:
         return {sc: (ratio(t[0], t[1]), ratio(t[2], t[3]), ratio(t[4], t[5])) for sc, t in self.texture.items()}
 
     def summary(self) -> dict:
-        mse = self.se_sum / self.px if self.px else 0.0
-        out = {"image_l1": rounded(self.l1_sum / self.px if self.px else None, 4),
-               "psnr": rounded(psnr_from_mse(mse) if self.px else None, 3),
-               "ssim": rounded(self.ssim_sum / self.frames if self.frames else None, 5),
-               "marker_err_mm": rounded(self.marker_sum_mm / self.marker_n if self.marker_n else None, 6),
-               "marker_err_contact_mm": rounded(self.contact_marker_sum_mm / self.contact_marker_n
-                                           if self.contact_marker_n else None, 6),
-               "force_err_n": rounded(self.force_sum_n / self.force_n if self.force_n else 0.0, 5),
-               "contact_area_err": rounded(self.area_rel_sum / self.area_n if self.area_n else None, 4)}
+        out = {"image_l1": rounded(self.l1_dn.mean(), 4),
+               "psnr": rounded(psnr_from_mse(self.se_dn2.mean()) if self.se_dn2.n else None, 3),
+               "ssim": rounded(self.ssims.mean(), 5),
+               "marker_err_mm": rounded(self.markers_mm.mean(), 6),
+               "marker_err_contact_mm": rounded(self.contact_markers_mm.mean(), 6),
+               "force_err_n": rounded(self.force_n.mean(0.0), 5),
+               "contact_area_err": rounded(self.area_rel.mean(), 4)}
         # None: not measured (no frames, markers or fabric scenes compared); PSNR also None for
         # identical images
         ratios = self.texture_ratios()
@@ -120,8 +120,14 @@ class ErrorAcc:
         return out
 
 
+def _add_distances(into: Mean, xy: np.ndarray, ref: np.ndarray, mm_per_px: float) -> None:
+    """The distances between marker centres ``xy`` and ``ref`` ((..., 2) px), in mm, into ``into``."""
+    if xy.size:
+        into.add(float(np.linalg.norm(xy - ref, axis=-1).sum()) * mm_per_px, int(np.prod(xy.shape[:-1])))
+
+
 def accumulate(acc: ErrorAcc, run: LevelRun, ref: LevelRun, mmpp: float, scene: str = "",
-                tex: SceneTexture | None = None, ref_tex: SceneTexture | None = None) -> None:
+               tex: SceneTexture | None = None, ref_tex: SceneTexture | None = None) -> None:
     """Add one scene's errors of ``run`` against ``ref`` (same contact) to ``acc``."""
     touch = np.asarray(ref.contact.in_contact, bool)
     if run.frames is not None and ref.frames is not None:
