@@ -9,7 +9,7 @@ thread) is also a context manager that releases it when the caller's block fails
 * :class:`VideoSink`: the frames into a video file (``encode``): the dataset's writer, the bench's;
 * :class:`DeviceFrames`: renders the frames on a torch device, ``batch`` at a time, and passes the
   completed records to its own sinks on a writer thread (``gelsim generate --backend torch``);
-* :class:`KeepFrames`: keeps the frames in memory (the bench compares them, a preview shows them);
+* :class:`KeepFrames`: keeps the frames in memory (the bench compares them);
 * :class:`ImprintCapture`: keeps each pressed frame's depth map and contact mask (the bench's texture
   metrics).
 
