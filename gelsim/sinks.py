@@ -153,9 +153,7 @@ class DeviceFrames:
         self.noise = noise
         self.sinks = list(sinks)
         self.seconds: dict[str, float] = {"optics": 0.0}
-        self._records: list[FrameRecord] = []
-        self._depths: list = []
-        self._markers: list = []
+        self._records: list[FrameRecord] = []    # the batch being filled (frozen: read at its launch)
         self._offsets: list = []
         self._inflight = None
         self._queue: queue.Queue = queue.Queue(maxsize=2)
@@ -182,15 +180,10 @@ class DeviceFrames:
 
     def write(self, record: FrameRecord) -> None:
         """Queue ``record``'s frame; renders a batch when one is full."""
-        from .optics.composite import marker_corners
-
         if self._error is not None:
             raise self._error
         t = stage_clock()
         self._offsets.append(self.br.draw(self.noise, True))
-        d, m = record.depth_mm, record.markers
-        self._depths.append(None if d is None else np.array(d, np.float32, copy=True))
-        self._markers.append(None if m is None else np.array(marker_corners(m), copy=True))
         self._records.append(record)
         if len(self._records) >= self.batch:
             self._launch()
@@ -200,7 +193,7 @@ class DeviceFrames:
         """Render the queued frames (asynchronously on a GPU) and pass the previous batch to the writer."""
         if not self._records:
             return
-        depth, corners = self.br.stage(self._depths, self._markers)
+        depth, corners = self.br.stage([r.depth_mm for r in self._records], [r.markers for r in self._records])
         out = self.br.quantise(self.br.compose(depth, corners), self._offsets)
         if out.device.type == "cuda":
             import torch
@@ -212,7 +205,7 @@ class DeviceFrames:
             job = (self._records, host, done)
         else:
             job = (self._records, out, None)
-        self._records, self._depths, self._markers, self._offsets = [], [], [], []
+        self._records, self._offsets = [], []
         self._collect()
         self._inflight = job
 
@@ -254,7 +247,7 @@ class DeviceFrames:
             self.close()
         elif not self._closed:                # the caller's error wins; stop the writer quietly
             self._closed = True
-            self._records, self._depths = [], []
+            self._records = []
             self._inflight = None
             self._queue.put(None)
             self._writer.join()
