@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 
 from .atomic import write_png
+from .crop import STAM_CPU_CROP, crop_box_px
 from .errors import GelsimError
 from .firstlook import write_first_look
 from .schema import ACTIONS, PREVIEWS_DIR
@@ -151,8 +152,6 @@ def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int 
     ``contact_bbox_px``, ``contact_centroid_px``, when present) in red and stam's centred crop
     (``crop``: fraction of the shorter side; default stam's cpu preset) in yellow. ``tile_px``: tile
     width, px (default: the frames' own, at most :data:`ACTION_TILE_MAX_PX`)."""
-    from .stats import STAM_CPU_CROP, crop_box_px
-
     root = Path(root)
     crop = STAM_CPU_CROP if crop is None else crop
     picks = pick_across_families(manifest, families)

@@ -101,36 +101,9 @@ def model_input(frame: np.ndarray, size: int, crop: float = 1.0) -> np.ndarray:
 
 
 def load_manifest(data_dir: str | Path) -> dict:
-    """Read and check ``DIR/manifest.json``; raise StamError for a missing, foreign or
-    incomplete dataset."""
-    d = Path(data_dir)
-    path = d / schema.MANIFEST
-    if not d.is_dir():
-        raise StamError(f"dataset directory {d} does not exist; pass the --out directory of `gelsim generate`")
-    if not path.is_file():
-        raise StamError(f"{d} has no {schema.MANIFEST}; pass a directory made by `gelsim generate`")
-    try:
-        m = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise StamError(f"cannot read {path} ({e}); regenerate the dataset") from None
-    problem = schema.manifest_problem(m)
-    if problem:
-        raise StamError(f"{path}: {problem}; pass a directory made by this version of `gelsim generate`")
-    if m.get("complete") is not True:
-        raise StamError(f"dataset {d} is incomplete (complete: false); rerun `gelsim generate` to finish it")
-    for key in ("fabrics", "sequences"):
-        if not isinstance(m.get(key), list) or not m[key]:
-            raise StamError(f"{path} has no {key}; regenerate the dataset")
-    ids = {f["id"] for f in m["fabrics"]}
-    for s in m["sequences"]:
-        for key in schema.READ_FIELDS:
-            if key not in s:
-                raise StamError(f"sequence {s.get('id', '?')} in {path} lacks {key!r}; regenerate the dataset")
-        if s["fabric_id"] not in ids:
-            raise StamError(f"sequence {s['id']} names unknown fabric {s['fabric_id']}; regenerate the dataset")
-        if s["split"] not in SPLITS:
-            raise StamError(f"sequence {s['id']} has split {s['split']!r}, expected one of {SPLITS}")
-    return m
+    """Read and check ``DIR/manifest.json`` (:func:`gelsim.schema.load_manifest`); raise StamError for a
+    missing, foreign or incomplete dataset, or one a sequence of which lacks what stam reads."""
+    return schema.load_manifest(data_dir, complete=True, error=StamError)
 
 
 def _writable(d: Path) -> bool:

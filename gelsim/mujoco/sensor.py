@@ -18,6 +18,9 @@ columns along the geom's +x, rows along its +y (``docs/mujoco.md``). Per frame:
    the gel slips and stays at the limit.
 5. **Markers** (:func:`gelsim.markers.displace`) and the **camera image** (:class:`gelsim.optics.Renderer`).
 
+Steps 3 and 5 are the pipeline's one-frame function (:func:`gelsim.stream.make_frame`), the one that
+``gelsim render`` and every dataset frame run too.
+
 Frames without a contact force on the pad skip steps 2-4: they are the flat gel (exactly
 :meth:`GelSightSensor.background` without noise). MuJoCo runs in SI units; everything the sensor
 returns is in mm, N, degrees and px, like the rest of gelsim.
@@ -36,12 +39,13 @@ import numpy as np
 from ..contact import gel_stiffness
 from ..errors import GelsimError
 from ..fidelity import Fidelity, get_fidelity
-from ..gel import Imprint, gel_sag_mm, press, work_shape
-from ..markers import displace, marker_grid, rest_markers
+from ..gel import Imprint, gel_sag_mm, work_shape
+from ..markers import marker_grid
 from ..optics import Renderer
 from ..runtime import ThreadLimit
 from ..scene import PHYSICS_MM_PER_PX, HeightPatch
 from ..sensor import SensorProfile, load_profile
+from ..stream import FrameSetup, StageTimer, Touch, make_frame
 from .rays import MM, PadRays
 
 #: Geom types that can be a gel pad, with the distance of their flat +z face from the geom's centre
@@ -204,8 +208,8 @@ class GelSightSensor:
         self.renderer = Renderer(prof, self.fidelity.render_backend, supersample=self.fidelity.supersample,
                                  seed=self.seed)
         self._rest = marker_grid(prof, seed=self.seed) if prof.markers.enabled else np.zeros((0, 2), np.float32)
-        self._flat_markers = rest_markers(prof, seed=self.seed) if prof.markers.enabled else None
-        self._background = self.renderer.render(None, self._flat_markers, noise=False)
+        self._setup = FrameSetup.make(prof, self.fidelity, sensor_seed=self.seed, renderer=self.renderer)
+        self._background = self.renderer.render(None, self._setup.flat_markers, noise=False)
         k_shear, k_tors, r_eff = gel_stiffness(prof)
         self._k_shear_n_mm = k_shear * MM          # N per mm of shear
         self._k_tors_nmm_rad = k_tors / MM         # N mm per rad
@@ -230,9 +234,7 @@ class GelSightSensor:
         r2 = x[None, :] ** 2 + y[:, None] ** 2
         ball_mm = 2.0                                      # radius of the ball pressed (any small one would do)
         prot = np.sqrt(np.maximum(ball_mm ** 2 - r2, 0.0)).astype(np.float32)
-        imprint = press(prot, self.profile, self.fidelity, force_n=0.5)
-        markers = displace(self.profile, self.fidelity, imprint, rest=self._rest) if self.profile.markers.enabled else None
-        self.renderer.render(imprint.depth_mm, markers, seed=np.random.default_rng(0), noise=self.noise)
+        make_frame(Touch(prot, force_n=0.5), self._setup, seed=np.random.default_rng(0), noise=self.noise)
 
     # -- state -------------------------------------------------------------------------------------
     def reset(self) -> None:
@@ -346,50 +348,38 @@ class GelSightSensor:
     @with_thread_limit
     def render(self) -> TactileFrame:
         """The tactile frame of the scene's current state (``data`` as it is now)."""
-        clock = time.thread_time
-        t0 = t = clock()
-        times: dict[str, float] = {}
-
-        def lap(stage: str) -> None:
-            nonlocal t
-            now = clock()
-            times[stage] = (now - t) * 1e3
-            t = now
-
+        timer = StageTimer()
+        t0 = timer.clock()
         prof = self.profile
         rng = np.random.default_rng([self.seed, self._frame])
         self._frame += 1
         found = self.contact_forces()
-        lap("forces")
+        timer.lap("forces")
         gaps = None
         if found is not None:
             gaps = self.rays.gaps_mm(self.data)
-            lap("rays")
+            timer.lap("rays")
             if not np.isfinite(gaps).any():   # pressed by something outside the field: no imprint
                 found = None
+        touch, slipping = None, False
         if found is None:
-            self._anchor, self._prev = None, None
-            rgb = (self.renderer.render(None, self._flat_markers, seed=rng) if self.noise
-                   else self._background.copy())
-            lap("render")
-            h, w = prof.shape
-            self.timings_ms = {**times, "total": (clock() - t0) * 1e3}
-            return TactileFrame(rgb, self._rest.copy(), self._rest.copy(), 0.0, np.zeros(2), np.zeros((h, w), bool),
-                                np.zeros((h, w), np.float32), np.zeros(2), 0.0, False, False, float(self.data.time))
-        normal, tang, torque, mu, body = found
-        prot = self.protrusion_mm(gaps)
-        lap("geometry")
-        imprint = press(prot, prof, self.fidelity, force_n=normal, warm=self._prev)
+            self._anchor = None
+        else:
+            normal, tang, torque, mu, body = found
+            prot = self.protrusion_mm(gaps)
+            shear, twist, slipping = self._stick_slip(body, normal, tang, torque, mu)
+            touch = Touch(prot, force_n=normal, shear_mm=tuple(shear), twist_deg=twist, warm=self._prev)
+            timer.lap("geometry")
+        imprint, markers, rgb = make_frame(touch, self._setup, seed=rng, noise=self.noise, timer=timer)
         self._prev = imprint
-        lap("imprint")
-        shear, twist, slipping = self._stick_slip(body, normal, tang, torque, mu)
-        markers = (displace(prof, self.fidelity, imprint, shear_mm=tuple(shear), twist_deg=twist, rest=self._rest)
-                   if prof.markers.enabled else None)
-        lap("markers")
-        rgb = self.renderer.render(imprint.depth_mm, markers, seed=rng, noise=self.noise)
-        lap("render")
-        self.timings_ms = {**times, "total": (clock() - t0) * 1e3}
-        xy = self._rest.copy() if markers is None else markers.xy_px
+        # (the optics stage has always been "render" here)
+        self.timings_ms = {("render" if k == "optics" else k): v * 1e3 for k, v in timer.take().items()}
+        self.timings_ms["total"] = (timer.clock() - t0) * 1e3
+        xy = self._rest.copy() if markers is None or imprint is None else markers.xy_px
+        if imprint is None:
+            h, w = prof.shape
+            return TactileFrame(rgb, xy, self._rest.copy(), 0.0, np.zeros(2), np.zeros((h, w), bool),
+                                np.zeros((h, w), np.float32), np.zeros(2), 0.0, False, False, float(self.data.time))
         return TactileFrame(rgb, xy, self._rest.copy(), float(normal), np.asarray(tang, float), imprint.contact_mask,
                             imprint.depth_mm, np.asarray(shear, float), float(twist), True, bool(slipping),
                             float(self.data.time))

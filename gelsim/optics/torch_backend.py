@@ -15,7 +15,7 @@ Two ways in:
   :class:`~gelsim.optics.shader.Shader` contract (:class:`TorchShader`: its shading on the device,
   markers and noise by the Renderer's numpy compositing);
 * :class:`BatchRenderer` (over such a Renderer): ``B`` frames at once, markers and noise on the
-  device too; :class:`FrameBatcher` feeds it from :func:`gelsim.sequence.render_sequence`, as the
+  device too; :class:`gelsim.sinks.DeviceFrames` feeds it a sequence's frame records, as the
   dataset does (``gelsim generate --backend torch --device cuda``).
 
 Agreement with ``fast`` (stated tolerance, :data:`TOL_MEAN_DN` and :data:`TOL_MAX_DN`, tested in
@@ -35,9 +35,6 @@ from __future__ import annotations
 
 import math
 import os
-import queue
-import threading
-from typing import Callable
 
 import cv2
 import numpy as np
@@ -656,119 +653,3 @@ def marker_factor(corners, shape: tuple[int, int], darkness: float, blur_sigma_p
     out = torch.ones(b * h * w + 1, device=corners.device)
     out.scatter_reduce_(0, idx.reshape(-1), fac.reshape(-1), reduce="prod")
     return out[:-1].reshape(b, h, w)
-
-
-# ---------------------------------------------------------------- a sequence's frames, batched
-
-class FrameBatcher:
-    """Stands in for a Renderer in :func:`gelsim.sequence.render_sequence`: :meth:`render` queues a frame
-    (its noise offsets drawn at once, in the sequence's order) and returns None; every ``batch`` frames
-    the batch is rendered on the device, and the finished uint8 frames go, in order, to ``sink`` on a
-    writer thread (the encoder), which works while the next batch is simulated and rendered. On a
-    CUDA device a batch's rendering and its copy back run while the CPU prepares the next.
-
-    Use as a context manager; leaving it renders what is queued and waits for the writer, re-raising
-    its error. ``stage_seconds``: CPU seconds spent rendering (this thread) and in ``sink`` (the writer's).
-    """
-
-    def __init__(self, batch_renderer: BatchRenderer, batch: int, sink: Callable[[np.ndarray], None]):
-        if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
-            raise GelsimError(f"--batch {batch!r} is invalid; give a whole number of frames >= 1")
-        self.br = batch_renderer
-        self.batch = batch
-        self.sink = sink
-        self._depths: list = []
-        self._markers: list = []
-        self._offsets: list = []
-        self._inflight = None
-        self._queue: queue.Queue = queue.Queue(maxsize=2)
-        self._error: BaseException | None = None
-        self._closed = False
-        self.sink_seconds = 0.0
-        self._writer = threading.Thread(target=self._write, name="gelsim-frame-writer", daemon=True)
-        self._writer.start()
-
-    def _write(self) -> None:
-        import time
-
-        while True:
-            frames = self._queue.get()
-            if frames is None:
-                return
-            if self._error is not None:
-                continue                      # drain after a failure, so the producer never blocks
-            try:
-                t = time.thread_time()
-                for f in frames:
-                    self.sink(f)
-                self.sink_seconds += time.thread_time() - t
-            except BaseException as e:  # handed to the producer's thread, raised at close
-                self._error = e
-
-    def render(self, depth_mm, markers=None, *, seed=0, noise: bool = True) -> None:
-        """Queue one frame (:meth:`Renderer.render`'s arguments); renders a batch when one is full."""
-        if self._error is not None:
-            raise self._error
-        self._offsets.append(self.br.draw(seed, noise))
-        self._depths.append(None if depth_mm is None else np.array(depth_mm, np.float32, copy=True))
-        self._markers.append(None if markers is None else np.array(marker_corners(markers), copy=True))
-        if len(self._depths) >= self.batch:
-            self._launch()
-        return None
-
-    def _launch(self) -> None:
-        """Render the queued frames (asynchronously on a GPU) and pass the previous batch to the writer."""
-        if not self._depths:
-            return
-        depth, corners = self.br.stage(self._depths, self._markers)
-        out = self.br.quantise(self.br.compose(depth, corners), self._offsets)
-        if out.device.type == "cuda":
-            import torch
-
-            host = torch.empty(out.shape, dtype=out.dtype, pin_memory=True)
-            host.copy_(out, non_blocking=True)
-            done = torch.cuda.Event()
-            done.record()
-            job = (host, done)
-        else:
-            job = (out, None)
-        self._depths, self._markers, self._offsets = [], [], []
-        self._collect()
-        self._inflight = job
-
-    def _collect(self) -> None:
-        if self._inflight is None:
-            return
-        frames, done = self._inflight
-        self._inflight = None
-        if done is not None:
-            done.synchronize()
-        self._queue.put(frames.numpy())
-
-    def close(self) -> None:
-        """Render what is queued, hand every frame to the writer and wait for it (once; again: nothing)."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            if self._error is None:
-                self._launch()
-                self._collect()
-        finally:
-            self._queue.put(None)
-            self._writer.join()
-        if self._error is not None:
-            raise self._error
-
-    def __enter__(self) -> "FrameBatcher":
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        elif not self._closed:                # the caller's error wins; stop the writer quietly
-            self._closed = True
-            self._depths = []
-            self._inflight = None
-            self._queue.put(None)
-            self._writer.join()

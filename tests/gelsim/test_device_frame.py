@@ -16,8 +16,10 @@ from gelsim.fabrics import load_catalog  # noqa: E402
 from gelsim.fidelity import get_fidelity  # noqa: E402
 from gelsim.motion import sample_motion  # noqa: E402
 from gelsim.optics import Renderer  # noqa: E402
-from gelsim.optics.torch_backend import TOL_MAX_UINT8_DN, BatchRenderer, FrameBatcher  # noqa: E402
-from gelsim.sequence import SequenceOutput, contact_location, render_sequence  # noqa: E402
+from gelsim.optics.torch_backend import TOL_MAX_UINT8_DN, BatchRenderer  # noqa: E402
+from gelsim.sequence import SequenceOptions, contact_location, render_sequence  # noqa: E402
+from gelsim.sinks import DeviceFrames, KeepFrames, drain  # noqa: E402
+from gelsim.stream import noise_generator  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
@@ -80,13 +82,12 @@ def test_sequences_in_step_equal_render_sequence(setup, device):
     assert out["frames"] == sum(m.num_frames for _, m, _ in specs)
     br = BatchRenderer(Renderer(prof, "torch", seed=0, device="cpu"))
     for i, (obj, motion, seed) in enumerate(specs):
-        frames = []
-        so = SequenceOutput({}, {})
-        with FrameBatcher(br, 8, frames.append) as fb:
-            for _ in render_sequence(obj, motion, prof, fid, seed=seed, renderer=fb, out=so,
-                                     contact=prep[i].contact, patch=prep[i].patch):
-                pass
-        lab, ref = out["labels"][i], so.labels
+        keep = KeepFrames()
+        options = SequenceOptions(outputs={"imprint", "markers"}, contact=prep[i].contact, patch=prep[i].patch)
+        ref, _ = drain(render_sequence(obj, motion, prof, fid, seed=seed, options=options),
+                       [DeviceFrames(br, 8, noise_generator(seed), [keep])])
+        frames = keep.frames
+        lab = out["labels"][i]
         assert np.abs(lab["indentation_mm"] - ref["indentation_mm"]).max() <= TOLERANCE["indentation_mm"]
         area = ref["contact_area_mm2"]
         assert np.all(np.abs(lab["contact_area_mm2"] - area) <= TOLERANCE["area_rel"] * area + 1e-9)

@@ -350,18 +350,17 @@ def _twist_labels(monkeypatch, passes=None, tol=None):
     import gelsim.gel.twoscale as ts
     from gelsim.fabrics import load_catalog
     from gelsim.motion import sample_motion
-    from gelsim.sequence import SequenceOutput, render_sequence
+    from gelsim.sequence import SequenceOptions, render_sequence
+    from gelsim.sinks import drain
 
     if passes is not None:
         monkeypatch.setattr(ts, "SUPPORT_PASSES", passes)
         monkeypatch.setattr(ts, "SUPPORT_TOL", tol)
     prof = load_profile("vitac").with_resolution(320, 240)
     motion = sample_motion("twist", 24, frames=(14, 14), precontact=(1, 1))
-    out = SequenceOutput({}, {})
-    for _ in render_sequence(load_catalog()[75], motion, prof, get_fidelity("balanced"), seed=24,
-                               outputs={"imprint"}, out=out):
-        pass
-    return out.labels["indentation_mm"], out.labels["contact_area_mm2"]
+    labels, _ = drain(render_sequence(load_catalog()[75], motion, prof, get_fidelity("balanced"), seed=24,
+                                      options=SequenceOptions(outputs={"imprint"})))
+    return labels["indentation_mm"], labels["contact_area_mm2"]
 
 
 def test_cloth_stiffness_fixed_point_is_converged(monkeypatch):

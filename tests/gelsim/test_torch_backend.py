@@ -17,7 +17,7 @@ from gelsim.errors import GelsimError  # noqa: E402
 from gelsim.optics import Renderer  # noqa: E402
 from gelsim.optics.shader import check_shader, shader_class  # noqa: E402
 from gelsim.optics.torch_backend import (TOL_MAX_DN, TOL_MAX_UINT8_DN, TOL_MEAN_DN, BatchRenderer,  # noqa: E402
-                                         FrameBatcher, TorchShader, resolve_device)
+                                         TorchShader, resolve_device)
 
 from test_optics import _weave, marker_grid, replace, sphere_dent  # noqa: E402
 
@@ -100,39 +100,6 @@ def test_same_bytes_for_any_batch_size_and_order(lut):
     for a, b, c in zip(one_by_one, together, backwards):
         assert a.tobytes() == b.tobytes() == c.tobytes()
     assert len({f.tobytes() for f in together}) == len(together)     # the frames do differ
-
-
-def test_frame_batcher_same_frames_in_order_for_any_batch(lut):
-    r = BatchRenderer(Renderer(lut, "torch", seed=0))
-    depths = [None, sphere_dent(lut, 2.0, 0.2), sphere_dent(lut, 2.0, 0.4), None, _weave(lut, 0.05, 0.03)]
-    fast = Renderer(lut, "fast", seed=0)
-    out = {}
-    for batch in (1, 3, 8):
-        frames, rng = [], np.random.default_rng(9)
-        with FrameBatcher(r, batch, frames.append) as fb:
-            for d in depths:
-                assert fb.render(d, None, seed=rng) is None
-        out[batch] = [f.tobytes() for f in frames]
-        # the noise was drawn from the sequence's generator as the numpy renderer draws it
-        ref_rng = np.random.default_rng(9)
-        for d in depths:
-            fast.render(d, None, seed=ref_rng)
-        assert rng.integers(1 << 30) == ref_rng.integers(1 << 30)
-    assert len(out[1]) == len(depths) and out[1] == out[3] == out[8]
-
-
-def test_frame_batcher_reraises_the_writers_error(lut):
-    r = BatchRenderer(Renderer(lut, "torch", seed=0))
-
-    def sink(frame):
-        raise OSError("disk full")
-
-    with pytest.raises(OSError, match="disk full"):
-        with FrameBatcher(r, 2, sink) as fb:
-            for _ in range(5):
-                fb.render(None, None, seed=0)
-    with pytest.raises(GelsimError, match="--batch"):
-        FrameBatcher(r, 0, sink)
 
 
 def test_renderer_one_frame_and_supersampling_agree(lut):
