@@ -75,8 +75,9 @@ def test_matches_fast_within_the_stated_tolerance(shading, lut, phong, fabric_de
     if shading == "lut":
         # the shadows and the halo are part of these scenes (so they are compared too)
         d = torch.from_numpy(scenes["steep sphere"])[None]
-        assert batch.shader._shadows(d, 0.0).abs().max() > 1.0
-        assert batch.shader._coarse(d).abs().max() > 1.0
+        shadows, coarse = batch.shader.terms
+        assert shadows.part_torch(d, 0.0).abs().max() > 1.0
+        assert coarse.part_torch(d, 0.0).abs().max() > 1.0
 
 
 def test_a_wrong_shading_is_caught(lut):
@@ -153,7 +154,7 @@ def test_renderer_one_frame_and_supersampling_agree(lut):
 def test_shader_contract_and_delta(lut):
     cls = check_shader(shader_class("torch", lut), "torch")
     assert cls is TorchShader and cls.name == "torch"
-    sh = Renderer(lut, "torch")._shader
+    sh = Renderer(lut, "torch").shader
     assert sh.delta(np.zeros(lut.shape, np.float32)) is None
     d = sphere_dent(lut, 2.0, 0.4)
     roi, change = sh.delta(d)
