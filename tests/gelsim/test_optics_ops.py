@@ -237,13 +237,22 @@ def test_table_lookup(rng, name, width):
 
     ref = numpy_lookup(d)
     got = np.moveaxis(n(table.lookup_torch(t(d)[None], table.lookup_to_torch(lut, "cpu"), mm))[0], 0, -1)
-    # OpenCV's remap weighs the 4 bins in steps of 1/32 of a bin (its coordinates rounded to 1/32): off by at
-    # most 1/64 of a bin in each direction, each times the table's steepest step between bins; the exact
-    # form's basis weights |xn|, |yn| <= 1 sum three such terms
+    # The bin coordinates (up to the mosaic's width) are computed in another order: a couple of float32
+    # steps of their size, times the table's steepest step between bins, plus a few steps of its values.
+    # The exact form's remap rounds them to 1/32 of a bin (OpenCV's fixed point, copied by the torch
+    # kernel): where a coordinate lies on a rounding boundary the two may round apart, at rare pixels,
+    # by 1/32 of a step in each of the three basis terms.
     tab = model.table.reshape(model.table.shape[0], model.table.shape[1], 3, 3)
     step = max(float(np.abs(np.diff(tab, axis=0)).max()), float(np.abs(np.diff(tab, axis=1)).max()))
-    tol = (3.0 if lut.exact else 1.0) * 2 * step / 64 + 1e-4
-    agree(ref, got, tol, numpy_lookup(np.roll(d, 1, axis=1)), f"table lookup {name}")
+    tol = 2 * EPS * float(lut.offx.max() + lut.offy.max()) * step + 16 * EPS * float(np.abs(model.table).max())
+
+    def outside(a) -> float:
+        e = np.abs(a - got)
+        return float((e > tol).mean()) if (not lut.exact or e.max() <= 3 * step / 32 + tol) else 1.0
+
+    assert outside(ref) <= (1e-3 if lut.exact else 0.0), \
+        f"table lookup {name}: {outside(ref):.2%} of the pixels differ by more than {tol:.3g} (GELSIM_OPS_SEED={SEED})"
+    assert outside(numpy_lookup(d * np.float32(1.001))) > 1e-3                 # a slope 0.1% off is seen
 
 
 # ---------------------------------------------------------------- shadows

@@ -7,8 +7,8 @@ with ``half = (nb - 1) / 2``. Two forms (:class:`TableLookup`, built by
 spatial terms evaluated at its centre (``offx, offy`` move each pixel's coordinates into its tile), or
 the exact 9-channel table weighted per pixel by its own ``[1, xn, yn]``.
 
-numpy kernel: OpenCV's remap (fixed-point, 1/32-bin weights) in bands of rows; torch kernel:
-``grid_sample`` (float weights) over whole frames.
+numpy kernel: OpenCV's remap in bands of rows; torch kernel: the same bilinear taps and weights
+(:func:`remap_torch`) over whole frames.
 """
 from __future__ import annotations
 
@@ -98,7 +98,7 @@ def lookup_rows(d: np.ndarray, top: int, rows: int, offx: np.ndarray, offy: np.n
 
 @dataclass(frozen=True)
 class TableLookupTorch:
-    """:class:`TableLookup` on a device (:func:`lookup_to_torch`): ``table`` ``(1, C, Hm, Wm)`` (the mosaic's 3
+    """:class:`TableLookup` on a device (:func:`lookup_to_torch`): ``table`` ``(C, Hm, Wm)`` (the mosaic's 3
     colours, or the exact form's 9 channels), ``offx`` ``(W,)``, ``offy`` ``(H,)``, and for the exact form
     ``xn`` ``(W,)`` and ``yn`` ``(H,)``."""
     half: float
@@ -118,24 +118,44 @@ def lookup_to_torch(lut: TableLookup, device) -> TableLookupTorch:
         return None if a is None else torch.tensor(np.ascontiguousarray(a, np.float32), device=device)
 
     table = lut.t9 if lut.exact else lut.mosaic4[..., :3]
-    return TableLookupTorch(lut.half, lut.exact, t(table.transpose(2, 0, 1))[None], t(lut.offx[0]),
+    return TableLookupTorch(lut.half, lut.exact, t(table.transpose(2, 0, 1)), t(lut.offx[0]),
                             t(lut.offy[:, 0]), t(lut.xn), t(lut.yn))
 
 
+def remap_torch(src, mx, my, fixed_point: bool):
+    """OpenCV's ``remap`` (INTER_LINEAR, BORDER_REPLICATE) of ``src`` ``(C, Hm, Wm)`` at float pixel coordinates
+    ``mx, my`` ``(B, H, W)``: ``(C, B, H, W)``. The four taps' weights as OpenCV 5.0 computes them: from the
+    coordinates' fractions for images of 1 to 4 channels, from the coordinates rounded to 1/32 px for
+    more channels (``fixed_point``: its fixed-point path, whose weights ``(32 - i)(32 - j) / 1024`` are
+    exact); the taps summed in its order. Each output pixel reads its own coordinates only."""
+    torch = torch_module()
+    if fixed_point:
+        qx, qy = torch.round(mx * 32.0).long(), torch.round(my * 32.0).long()
+        x0, y0 = qx >> 5, qy >> 5
+        fx, fy = (qx & 31).float() * (1.0 / 32.0), (qy & 31).float() * (1.0 / 32.0)
+    else:
+        x0, y0 = torch.floor(mx), torch.floor(my)
+        fx, fy = mx - x0, my - y0
+        x0, y0 = x0.long(), y0.long()
+    c, hm, wm = src.shape
+    flat = src.reshape(c, hm * wm)
+
+    def tap(y, x, weight):
+        idx = y.clamp(0, hm - 1) * wm + x.clamp(0, wm - 1)
+        return flat[:, idx] * weight
+
+    gx, gy = 1.0 - fx, 1.0 - fy
+    return ((tap(y0, x0, gy * gx) + tap(y0, x0 + 1, gy * fx)) + tap(y0 + 1, x0, fy * gx)) + tap(y0 + 1, x0 + 1, fy * fx)
+
+
 def lookup_torch(d, lut: TableLookupTorch, mm_per_px: float):
-    """:func:`lookup_rows` of whole frames: ``(B, 3, H, W)`` DN from imprints ``(B, H, W)`` mm. The frames are
-    looked up as one tall image (an output pixel depends on its own coordinates only, whatever the batch)."""
+    """:func:`lookup_rows` of whole frames: ``(B, 3, H, W)`` DN from imprints ``(B, H, W)`` mm."""
     torch = torch_module()
     gx, gy = slopes_torch(d, mm_per_px)
     k = 1.0 / torch.sqrt(gx * gx + gy * gy + 1.0)
     mx = gx * k * (-lut.half) + lut.offx[None, :]
     my = gy * k * (-lut.half) + lut.offy[:, None]
-    _, c, hm, wm = lut.table.shape
-    b, h, w = mx.shape
-    grid = torch.stack([mx * (2.0 / (wm - 1)) - 1.0, my * (2.0 / (hm - 1)) - 1.0], dim=-1)
-    out = torch.nn.functional.grid_sample(lut.table, grid.reshape(1, b * h, w, 2), mode="bilinear",
-                                          padding_mode="border", align_corners=True)
-    out = out.reshape(c, b, h, w).transpose(0, 1)
+    out = remap_torch(lut.table, mx, my, lut.exact).transpose(0, 1)
     if not lut.exact:
         return out
     # per colour the three basis values weighted by the pixel's [1, xn, yn], summed in that order
