@@ -38,7 +38,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import GelsimError, check_choice
-from .composite import STAGES, FrameInput, Optics, check_depth
+from . import composite
+from .composite import FrameInput, Optics, check_depth
 from .ops.filters import blur_radius_px, gaussian_blur
 from .ops.readout import to_uint8
 from .ops.resample import upsample
@@ -94,7 +95,7 @@ class Renderer:
         fine, maps = self.optics.fine, self.optics.maps
         cls = shader_class(backend, profile)
         self.shader: Shader = cls(fine, maps, device=device) if backend == "torch" else cls(fine, maps)
-        self.stages = [stage(self.optics) for stage in STAGES]
+        self.stages = [stage(self.optics) for stage in composite.STAGES]
         self._bufs: dict[str, np.ndarray] = {}
         # the last flat gel's frame after the stages before the readout, and those stages' states: reused
         # while they are the same objects (the markers at rest before contact: 0.6 ms of copy and 0.3 of

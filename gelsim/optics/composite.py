@@ -125,7 +125,8 @@ class Stage(ABC):
     ``banded``: the numpy kernel works on any band of a frame's rows alone, in place (so the renderer
     can run it while the band is in the cache); False: it needs the whole frame and returns a new one.
     ``final``: the readout, last in :data:`STAGES`; it turns the float frame into the camera's uint8
-    frame, and is skipped for an unquantised frame."""
+    frame (its :meth:`apply` reads the rows and writes its own output, :meth:`result`), and is skipped
+    for an unquantised frame (:meth:`Renderer.render_float`, :meth:`BatchRenderer.compose`)."""
 
     name: str = ""
     banded: bool = True
@@ -154,6 +155,10 @@ class Stage(ABC):
     def apply_torch(self, frames, batch: BatchInput, draws: list):
         """torch kernel: ``frames`` ``(B, 3, H, W)`` DN after this stage (``draws``: each frame's
         :meth:`draw`, or None)."""
+
+    def result(self, state) -> np.ndarray:
+        """The ``final`` stage's output once every row of the frame went through :meth:`apply`."""
+        raise NotImplementedError(f"{self.name} is not the final stage")
 
 
 class Markers(Stage):
@@ -245,7 +250,7 @@ class Readout(Stage):
         return rows
 
     def result(self, state) -> np.ndarray:
-        """The uint8 ``(H, W, 3)`` frame once every row went through :meth:`apply`."""
+        """The uint8 ``(H, W, 3)`` frame."""
         return state.out
 
     def apply_torch(self, frames, batch, draws):

@@ -136,6 +136,26 @@ def test_frame_batcher_reraises_the_writers_error(lut):
         FrameBatcher(r, 0, sink)
 
 
+def test_stage_takes_device_tensors(lut):
+    """The imprint and the markers as tensors (as a device imprint hands them over) give the frames of the
+    same arrays, validated on the device with one line per problem."""
+    r = BatchRenderer(Renderer(lut, "torch", seed=4))
+    depths = [sphere_dent(lut, 2.0, 0.4), None, _weave(lut, 0.05, 0.03)]
+    corners, _ = marker_grid(lut)
+    marks = [corners, corners + np.float32(0.5), corners]
+    want = r.quantise(r.compose(*r.stage(depths, marks)), [r.draw(s) for s in (1, 2, 3)])
+    dt = torch.stack([torch.zeros(lut.shape) if d is None else torch.from_numpy(d) for d in depths])
+    ct = torch.from_numpy(np.stack(marks))
+    got = r.quantise(r.compose(*r.stage(dt, ct)), [r.draw(s) for s in (1, 2, 3)])
+    assert torch.equal(want, got)
+    for bad, match in ((dt[:, :-1], "depth map tensor has shape"), (dt * float("nan"), "NaN"),
+                       (dt - 0.1, "negative"), (dt.double().long(), "dtype")):
+        with pytest.raises(GelsimError, match=match):
+            r.stage(bad, None)
+    with pytest.raises(GelsimError, match="marker corners tensor"):
+        r.stage(dt, ct[..., :1])
+
+
 def test_renderer_one_frame_and_supersampling_agree(lut):
     """Renderer(..., "torch") one frame at a time (the Shader contract, numpy markers and noise) and
     with supersampling agree with the fast backend within the tolerance."""
