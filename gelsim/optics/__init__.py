@@ -39,7 +39,7 @@ import numpy as np
 
 from ..errors import GelsimError, check_choice
 from . import composite
-from .composite import FrameInput, Optics, check_depth
+from .composite import FrameInput, Optics, check_depth, frame_rng
 from .ops.filters import blur_radius_px, gaussian_blur
 from .ops.readout import to_uint8
 from .ops.resample import upsample
@@ -96,6 +96,7 @@ class Renderer:
         cls = shader_class(backend, profile)
         self.shader: Shader = cls(fine, maps, device=device) if backend == "torch" else cls(fine, maps)
         self.stages = [stage(self.optics) for stage in composite.STAGES]
+        self._shape, self._fine_shape = profile.shape, self.optics.fine.shape + (3,)
         self._bufs: dict[str, np.ndarray] = {}
         # the last flat gel's frame after the stages before the readout, and those stages' states: reused
         # while they are the same objects (the markers at rest before contact: 0.6 ms of copy and 0.3 of
@@ -123,12 +124,11 @@ class Renderer:
         (x, y) px, such an array, or None; ``seed``: picks this frame's noise
         (same seed, same frame); ``noise``: False for a noiseless frame.
         """
-        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-        return self._run(depth_mm, markers, rng, noise)
+        return self._run(depth_mm, markers, frame_rng(seed), noise)
 
-    def _run(self, depth_mm, markers, rng: np.random.Generator | None = None, noise: bool = True) -> np.ndarray:
-        """The frame through the shading and the stages: uint8 with ``rng`` (each stage drawing from it in
-        turn), else the float frame before the readout (the cached background itself, or a work buffer
+    def _run(self, depth_mm, markers, rng=None, noise: bool = True) -> np.ndarray:
+        """The frame through the shading and the stages: uint8 with ``rng`` (:func:`~gelsim.optics.composite.frame_rng`,
+        each stage drawing from it in turn), else the float frame before the readout (the cached background itself, or a work buffer
         that the next frame overwrites: callers must not modify or keep it).
 
         Where every stage with something to do works on bands of rows (no supersampling), the shader
@@ -136,11 +136,10 @@ class Renderer:
         cache (:meth:`Shader.compose`'s ``finish``): the frame's float32 copy is then never written to
         memory (8 MB at 960x720)."""
         final = rng is not None
-        depth = check_depth(depth_mm, self.profile.shape)
-        fine = self.optics.fine.shape
+        depth = check_depth(depth_mm, self._shape)
         if depth is not None and self.supersample > 1:
-            depth = upsample(depth, self.supersample, fine)
-        inp = FrameInput(depth, markers, fine + (3,))
+            depth = upsample(depth, self.supersample, self._fine_shape[:2])
+        inp = FrameInput(depth, markers, self._fine_shape)
         stages = self.stages if final else [st for st in self.stages if not st.final]
         active = []
         for st in stages:

@@ -40,7 +40,7 @@ from .ops.readout import NoiseBank, readout_torch, to_uint8_rows
 from .ops.resample import area_mean, area_mean_torch
 
 __all__ = ["Optics", "FrameInput", "BatchInput", "Stage", "Markers", "AreaAverage", "Readout", "STAGES",
-           "check_depth", "marker_corners"]
+           "check_depth", "frame_rng", "marker_corners"]
 
 
 @dataclass(frozen=True)
@@ -100,6 +100,21 @@ def check_depth(depth_mm, shape: tuple[int, int]) -> np.ndarray | None:
     return d
 
 
+def frame_rng(seed: int | np.random.Generator):
+    """A frame's random generator for the stages' draws, made on first use: a callable returning the
+    Generator (``seed`` itself if it is one, else ``np.random.default_rng(seed)``). A fresh Generator
+    costs about 30 us, as much as a tenth of a small flat frame: a frame whose stages draw nothing
+    makes none."""
+    made = [seed] if isinstance(seed, np.random.Generator) else []
+
+    def rng() -> np.random.Generator:
+        if not made:
+            made.append(np.random.default_rng(seed))
+        return made[0]
+
+    return rng
+
+
 @dataclass
 class FrameInput:
     """One frame's inputs to the numpy stages: ``depth`` the imprint at the fine resolution (float32 mm,
@@ -135,9 +150,9 @@ class Stage(ABC):
     def __init__(self, optics: Optics):
         self.optics = optics
 
-    def draw(self, rng: np.random.Generator, noise: bool):
-        """This stage's random draws for one frame from the frame's generator (in :data:`STAGES`' order;
-        ``noise`` False: a noiseless frame). Default: none (None)."""
+    def draw(self, rng, noise: bool):
+        """This stage's random draws for one frame from the frame's generator ``rng()`` (:func:`frame_rng`;
+        the stages draw in :data:`STAGES`' order; ``noise`` False: a noiseless frame). Default: none (None)."""
         return None
 
     @abstractmethod
@@ -233,14 +248,15 @@ class Readout(Stage):
 
     def __init__(self, optics: Optics):
         super().__init__(optics)
+        self._shape = optics.profile.shape + (3,)
         self._banks: dict = {}                # the noise bank per torch device
 
     def draw(self, rng, noise):
         n = self.optics.noise
-        return n.offsets(rng) if noise and n.active else None
+        return n.offsets(rng()) if noise and n.active else None
 
     def prepare(self, frame, draw):
-        return _Readout(draw, np.empty(self.optics.profile.shape + (3,), np.uint8))
+        return _Readout(draw, np.empty(self._shape, np.uint8))
 
     def apply(self, rows, y0, state):
         if state.offsets is None:

@@ -257,7 +257,7 @@ def table_model(profile, table: dict | None = None) -> TableModel:
     coarse = CoarseSpec("depth_rgb" in t, halo, np.concatenate(mix).astype(np.float32) * gain, box) if mix else None
     mm = profile.image.mm_per_px
     terms = (([ShadowTerm(shadows, mm)] if shadows is not None else [])
-             + ([CoarseTerm(coarse, mm, profile.field_mm)] if coarse is not None else []))
+             + ([CoarseTerm(coarse, mm, profile.field_mm, profile.shape)] if coarse is not None else []))
     return TableModel(tab, table_lookup(profile, tab, box, spatial_dn), shadows, coarse, box, tuple(terms))
 
 

@@ -41,7 +41,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import GelsimError
-from .composite import BatchInput, check_depth, marker_corners
+from .composite import BatchInput, check_depth, frame_rng, marker_corners
 from .ops import torch_module
 from .ops.box import MARGIN_PX, box_mask_torch
 from .ops.filters import blur_radius_px, gaussian_blur_torch, slopes_torch
@@ -212,7 +212,7 @@ class BatchRenderer:
     def draw(self, seed, noise: bool = True):
         """This frame's random draws, one per stage (the readout's: the noise's offsets ``(bank frame, row,
         column)``), drawn from ``seed`` as the numpy renderer draws them; None where nothing is drawn."""
-        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        rng = frame_rng(seed)
         draws = tuple(st.draw(rng, noise) for st in self.stages)
         return None if all(d is None for d in draws) else draws
 

@@ -31,7 +31,7 @@ class Gain(C.Stage):
     name = "gain"
 
     def draw(self, rng, noise):
-        return float(rng.uniform(0.6, 0.9))
+        return float(rng().uniform(0.6, 0.9))
 
     def prepare(self, frame, draw):
         return None if draw is None else np.float32(draw)

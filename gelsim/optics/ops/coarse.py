@@ -68,19 +68,19 @@ def grid_positions(shape: tuple[int, int], mm_per_px: float, field_mm: tuple[flo
 
 
 def coarse_grid(depth: np.ndarray, mm_per_px: float, field_mm: tuple[float, float], depth_term: bool,
-                halo: dict | None, box=None) -> tuple[np.ndarray, int]:
+                halo: dict | None, box=None, positions=None) -> tuple[np.ndarray, int]:
     """The depth and halo terms' features on the coarse grid: float32 ``(h', w', k)``, ``k`` = 3 for the
     depth term's ``[d, d xn, d yn]`` if ``depth_term`` and 3 for the halo's ``[g db/dx, g db/dy, s]``
     if ``halo`` (a dict of ``halo_sigma_mm``, ``halo_base_mm``, ``halo_gate_mm``); and the grid's
     factor (:func:`coarse_factor`). ``depth``: the whole frame's imprint, mm; the gel continues past
     the image (replicated borders), as for the camera blur; ``box``: the table's ``position_box``
-    (:func:`clamp_positions`)."""
+    (:func:`clamp_positions`); ``positions``: :func:`grid_positions`' ``(xn, yn)`` if known."""
     f = coarse_factor(mm_per_px)
     hg = area_mean(depth, f)
     gmm = mm_per_px * f
     feats = []
     if depth_term:
-        xn, yn = grid_positions(depth.shape, mm_per_px, field_mm, f, box)
+        xn, yn = grid_positions(depth.shape, mm_per_px, field_mm, f, box) if positions is None else positions
         feats += [hg, hg * xn[None, :], hg * yn[:, None]]
     if halo is not None:
         b = smooth(hg, halo["halo_sigma_mm"] / gmm, "replicate")
@@ -103,21 +103,22 @@ def coarse_features(depth: np.ndarray, mm_per_px: float, field_mm: tuple[float, 
     return np.stack(chans, axis=-1)
 
 
-def coarse_small(depth: np.ndarray, spec: CoarseSpec, mm_per_px: float,
-                 field_mm: tuple[float, float]) -> tuple[np.ndarray, int]:
+def coarse_small(depth: np.ndarray, spec: CoarseSpec, mm_per_px: float, field_mm: tuple[float, float],
+                 positions=None) -> tuple[np.ndarray, int]:
     """The terms' colour change on the coarse grid: ``(small, f)``, float32 ``(h', w', 3)`` DN and the
-    grid's factor (not yet skipped below :data:`COARSE_SKIP_DN`)."""
-    g, f = coarse_grid(depth, mm_per_px, field_mm, spec.depth_term, spec.halo, spec.box)
+    grid's factor (not yet skipped below :data:`COARSE_SKIP_DN`); ``positions`` as for :func:`coarse_grid`."""
+    g, f = coarse_grid(depth, mm_per_px, field_mm, spec.depth_term, spec.halo, spec.box, positions)
     hs, ws, k = g.shape
     return (g.reshape(-1, k) @ spec.rgb).reshape(hs, ws, 3), f
 
 
-def coarse_crop(depth: np.ndarray, spec: CoarseSpec, mm_per_px: float, field_mm: tuple[float, float]):
+def coarse_crop(depth: np.ndarray, spec: CoarseSpec, mm_per_px: float, field_mm: tuple[float, float],
+                positions=None):
     """:func:`coarse_small` over the grid's box where the change is not zero, grown by one zero grid pixel,
     so that the crop's bilinear values equal those of the whole grid: ``(roi, crop, f)``, the crop
     (float32 ``(h', w', 3)`` DN) whose upsampling by ``f`` (:func:`upsample`) gives the change over
     ``roi`` (cut to its size) of the frame; None where no pixel changes by :data:`COARSE_SKIP_DN`."""
-    small, f = coarse_small(depth, spec, mm_per_px, field_mm)
+    small, f = coarse_small(depth, spec, mm_per_px, field_mm, positions)
     hs, ws = small.shape[:2]
     # |change| with a grid row's colours side by side: numpy's max along an axis of 3 took 0.75 ms
     # here (a loop per pixel), along rows of 3 ws values and down columns 0.04 ms
@@ -138,17 +139,18 @@ def coarse_crop(depth: np.ndarray, spec: CoarseSpec, mm_per_px: float, field_mm:
 
 # ---------------------------------------------------------------- torch
 
-def coarse_small_torch(d, spec: CoarseSpec, mm_per_px: float, field_mm: tuple[float, float]):
+def coarse_small_torch(d, spec: CoarseSpec, mm_per_px: float, field_mm: tuple[float, float], positions=None):
     """:func:`coarse_small` of whole frames ``(B, H, W)``: ``(B, 3, h', w')`` DN, zero in a frame where no
-    pixel changes by :data:`COARSE_SKIP_DN` (as :func:`coarse_crop` skips it)."""
+    pixel changes by :data:`COARSE_SKIP_DN` (as :func:`coarse_crop` skips it); ``positions``: the grid's
+    ``(xn, yn)`` as tensors on ``d``'s device, if known."""
     torch = torch_module()
     f = coarse_factor(mm_per_px)
     hg = area_mean_torch(d, f)
     gmm = mm_per_px * f
     feats = []
     if spec.depth_term:
-        xn, yn = (torch.tensor(v, device=d.device) for v in grid_positions(tuple(d.shape[1:]), mm_per_px,
-                                                                           field_mm, f, spec.box))
+        xn, yn = positions if positions is not None else (
+            torch.tensor(v, device=d.device) for v in grid_positions(tuple(d.shape[1:]), mm_per_px, field_mm, f, spec.box))
         feats += [hg, hg * xn[None, :], hg * yn[:, None]]
     if spec.halo is not None:
         halo = spec.halo
@@ -165,20 +167,36 @@ def coarse_small_torch(d, spec: CoarseSpec, mm_per_px: float, field_mm: tuple[fl
 
 class CoarseTerm:
     """The depth and halo terms as a term of the table's shading (:class:`gelsim.optics.lut.TableModel`):
-    ``spec`` for a profile of ``mm_per_px`` and ``field_mm``. Added unblurred by the camera: they are
-    smooth at its scale."""
+    ``spec`` for a profile of ``mm_per_px``, ``field_mm`` and ``shape`` (H, W), whose grid positions are
+    computed once. Added unblurred by the camera: they are smooth at its scale."""
 
-    def __init__(self, spec: CoarseSpec, mm_per_px: float, field_mm: tuple[float, float]):
+    def __init__(self, spec: CoarseSpec, mm_per_px: float, field_mm: tuple[float, float], shape: tuple[int, int]):
         self.spec = spec
         self.mm = float(mm_per_px)
         self.field_mm = field_mm
+        self.shape = tuple(shape)
+        self.positions = grid_positions(self.shape, self.mm, field_mm, coarse_factor(self.mm), spec.box)
+        self._on_device: dict = {}
+
+    def _positions(self, shape, device=None):
+        """The grid positions for a frame of ``shape`` (computed here unless it is the profile's), as
+        tensors on ``device`` (None: arrays)."""
+        if tuple(shape) != self.shape:
+            return None
+        if device is None:
+            return self.positions
+        if device not in self._on_device:
+            torch = torch_module()
+            self._on_device[device] = tuple(torch.tensor(v, device=device) for v in self.positions)
+        return self._on_device[device]
 
     def part(self, depth: np.ndarray, extent, margin_px: int, blur_sigma_px: float):
         """``(box, grid, factor)`` of :func:`coarse_crop` for imprint ``depth`` (float32 ``(H, W)`` mm), or None
         (``extent``, ``margin_px`` and ``blur_sigma_px``: as for every term, unused here)."""
-        return coarse_crop(depth, self.spec, self.mm, self.field_mm)
+        return coarse_crop(depth, self.spec, self.mm, self.field_mm, self._positions(depth.shape))
 
     def part_torch(self, d, blur_sigma_px: float):
         """The change over whole frames: ``(B, 3, H, W)`` DN from imprints ``(B, H, W)`` mm."""
         f = coarse_factor(self.mm)
-        return upsample_torch(coarse_small_torch(d, self.spec, self.mm, self.field_mm), f, tuple(d.shape[1:]))
+        small = coarse_small_torch(d, self.spec, self.mm, self.field_mm, self._positions(d.shape[1:], d.device))
+        return upsample_torch(small, f, tuple(d.shape[1:]))
