@@ -194,7 +194,7 @@ class DeviceFrames:
         if not self._records:
             return
         depth, corners = self.br.stage([r.depth_mm for r in self._records], [r.markers for r in self._records])
-        out = self.br.quantise(self.br.compose(depth, corners), self._offsets)
+        out = self.br.quantise(self.br.compose(depth, corners, self._offsets), self._offsets)
         if out.device.type == "cuda":
             import torch
 

@@ -171,19 +171,14 @@ def contact_labels(mask):
 # ---------------------------------------------------------------- optics from device tensors
 
 class DeviceRenderer(BatchRenderer):
-    """The torch backend's :class:`~gelsim.optics.torch_backend.BatchRenderer` taking the depth and the marker
-    corners as device tensors (its :meth:`compose` copied host arrays in; a tensor is used where it is)."""
-
-    def _to_device(self, a):
-        torch = ops.torch_module()
-        if torch.is_tensor(a):
-            return a.to(self.device)
-        return super()._to_device(a)
+    """The torch backend's :class:`~gelsim.optics.torch_backend.BatchRenderer` with one call for a batch whose
+    depth and marker corners are already device tensors (its :meth:`stage` and :meth:`compose` keep them there)."""
 
     def frames(self, depth, corners, offsets):
         """uint8 ``(B, H, W, 3)`` on the device from depth float32 ``(B, H, W)`` mm, corners float32 ``(B, N, 4, 2)``
-        px (or None) and each frame's noise offsets (:meth:`draw`)."""
-        return self.quantise(self.compose(depth, corners if self._markers else None), offsets)
+        px (or None) and each frame's draws (:meth:`draw`)."""
+        corners = corners if self.profile.markers.enabled else None
+        return self.quantise(self.compose(depth, corners, offsets), offsets)
 
 
 # ---------------------------------------------------------------- sequences in step

@@ -131,10 +131,10 @@ def membrane_blur(depth, sigma_px: float):
     """:func:`gelsim.gel.util.membrane_blur` on ``(B, H, W)``."""
     if sigma_px < MIN_BLUR_PX:
         return depth
-    from ..optics.torch_backend import gaussian
+    from ..optics.ops.filters import smooth_torch
 
     k = 2 * int(math.ceil(3.0 * sigma_px)) + 1
-    return gaussian(depth, sigma_px, k, border="constant")
+    return smooth_torch(depth, sigma_px, border="constant", ksize=k)
 
 
 def _coarse_reader(plans, frame, rows, cols):

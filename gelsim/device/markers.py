@@ -167,9 +167,9 @@ def _displace_live(profile, fid, depth_mm, contact_mask, box, live, shear, twist
         gy, gx = _gradient(phi * (cell_mm * cell_mm), cell_mm, hc_t, wc_t)
         ux, uy = amp * gx, amp * gy
     else:
-        from ..optics.torch_backend import gaussian
+        from ..optics.ops.filters import smooth_torch
 
-        bl = gaussian(cells, ell, border="constant")
+        bl = smooth_torch(cells, ell, border="constant")
         gy, gx = _gradient(bl[:, 0].double(), cell_mm, hc_t, wc_t)
         a = amp * gel.thickness_mm ** 2
         ux, uy = -a * gx, -a * gy

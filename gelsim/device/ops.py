@@ -15,9 +15,9 @@ import numpy as np
 
 def torch_module():
     """The torch module, or one line saying how to get it (the torch backend's message)."""
-    from ..optics.torch_backend import _torch
+    from ..optics.ops import torch_module as optics_torch
 
-    return _torch()
+    return optics_torch()
 
 
 def as_index(values, device):

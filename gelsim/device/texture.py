@@ -158,9 +158,9 @@ def texture_depth(surface, env, ny, nx, pressure_cells, scale: TextureScale, gel
     rows, cols = NYb // fs, NXb // fs
     C = NX // fs
     if blurred:
-        from ..optics.torch_backend import gaussian
+        from ..optics.ops.filters import smooth_torch
 
-        tq = gaussian(t, sigma, border="replicate")
+        tq = smooth_torch(t, sigma, border="replicate")
     else:
         tq = t
 
