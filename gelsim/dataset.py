@@ -31,7 +31,7 @@ from . import schema
 from .atomic import atomic_write_json, atomic_write_npz
 from .errors import GelsimError
 from .provenance import source_digest
-from .schema import ACTIONS, SPLITS, sha256_of
+from .schema import ACTIONS, SPLITS, load_manifest, sha256_of  # noqa: F401 (load_manifest: for callers)
 
 SPLIT_WEIGHTS = (7.0, 2.0, 1.0)  # the paper's 7:2:1 split, by sequence (the default of --split)
 # Bytes per pixel per frame of each format at 960x720, measured on generated sequences
@@ -47,7 +47,7 @@ class GenerateConfig:
     sequences_per_fabric: int = 50
     actions: tuple[float, float, float] = (7.0, 1.0, 2.0)
     frames: tuple[int, int] = (25, 36)
-    precontact: tuple[int, int] | None = None   # None: the default range of assets/motions.toml
+    precontact: tuple[int, int] | None = None   # None: the default range of gelsim/assets/motions.toml
     profile: str = "vitac"
     resolution: tuple[int, int] | None = None   # (width, height); None: the profile's own
     fidelity: str = "balanced"
@@ -230,7 +230,7 @@ def plan(config: GenerateConfig, catalog_size: int) -> list[SequenceSpec]:
 def check_frames(config: GenerateConfig) -> None:
     """One line, before anything is written, when a sequence of ``config.frames`` could keep fewer than
     MIN_CONTACT_FRAMES in contact after its pre-contact frames (``config.precontact``, or the default
-    mixture of assets/motions.toml: its early range, and its late starts when their fraction is above 0)."""
+    mixture of gelsim/assets/motions.toml: its early range, and its late starts when their fraction is above 0)."""
     from .motion import MIN_CONTACT_FRAMES, load_motion_ranges
 
     lo, hi = config.frames
@@ -242,7 +242,7 @@ def check_frames(config: GenerateConfig) -> None:
         t = load_motion_ranges().timing
         # late starts are drawn only when their fraction is above 0
         most = max(t.precontact_frames[1], t.late_start_frames[1] if t.late_start_fraction > 0 else 0)
-        what = f"the default pre-contact frames (up to {most}, assets/motions.toml)"
+        what = f"the default pre-contact frames (up to {most}, gelsim/assets/motions.toml)"
         fix = "give --precontact (e.g. 0-1)"
     if lo - most < MIN_CONTACT_FRAMES:
         raise GelsimError(f"--frames {lo}-{hi} with {what} can leave fewer than {MIN_CONTACT_FRAMES} frames in contact; "
@@ -265,23 +265,6 @@ def unit_profiles(config: GenerateConfig, profile) -> list:
 
 
 # ---------------------------------------------------------------- files
-
-def load_manifest(root: str | Path) -> dict:
-    """The manifest of the dataset under ``root``, checked to be this format and version."""
-    root = Path(root)
-    mpath = root / schema.MANIFEST
-    if not mpath.exists():
-        raise GelsimError(f"{root} is not a gelsim dataset (no {schema.MANIFEST}); give a directory made by "
-                          "gelsim generate")
-    try:
-        m = json.loads(mpath.read_text())
-    except json.JSONDecodeError as e:
-        raise GelsimError(f"{mpath} is not valid JSON ({e}); regenerate the dataset") from None
-    problem = schema.manifest_problem(m)
-    if problem:
-        raise GelsimError(f"{root}: {problem}; give a directory made by this version of gelsim generate")
-    return m
-
 
 class StaleOutput(GelsimError):
     """``--out`` holds a gelsim dataset that this code cannot resume: made with other options, library
@@ -308,12 +291,12 @@ def check_out_dir(root: str | Path, options: dict) -> dict | None:
         raise StaleOutput(f"--out {root} holds a dataset made with other options ({', '.join(diff)}); "
                           "rerun with the same options to resume, choose another --out, or add --replace-stale to set it "
                           "aside and start anew")
-    diff = _library_difference(m.get("libraries"))
-    if diff:
+    what, diff = _made_otherwise(m)
+    if what == "libraries":
         raise StaleOutput(f"--out {root} was made with other library versions ({diff}), which give other bytes "
                           "from the same seed; resume it where those are installed, choose another --out, or add "
                           "--replace-stale to set it aside and start anew")
-    if _other_source(m):
+    if what == "source":
         fix = "" if m.get("complete") else "finish it with the code that began it, "
         raise StaleOutput(f"--out {root} was made by other gelsim code or assets (its manifest's source digest "
                           f"differs), which give other sequences from the same seed; {fix}choose another --out, or "
@@ -440,34 +423,36 @@ def _unit(k: int):
     return w["units"][k], w["unit_renderers"][k]
 
 
-def _render_frames(renderer, writer, sequence: Callable, out) -> float:
-    """Render the frames of ``sequence(renderer)`` (a :func:`gelsim.sequence.render_sequence` call filling
-    ``out``) into ``writer``; returns the CPU seconds spent encoding. A BatchRenderer (torch backend)
-    renders them ``config.batch`` at a time while a writer thread encodes the previous batch."""
-    from .optics.torch_backend import DEFAULT_BATCH, BatchRenderer, FrameBatcher
-    from .sequence import stage_clock
+@contextlib.contextmanager
+def _frame_sinks(renderer, video: Path, fps: float, seed: int):
+    """(sequence options, sinks) that write one sequence's frames to ``video``: rendered by the sequence
+    with ``renderer`` (a :class:`gelsim.optics.Renderer`), or for the torch backend (a
+    :class:`gelsim.optics.torch_backend.BatchRenderer`) by a :class:`gelsim.sinks.DeviceFrames` sink,
+    ``config.batch`` frames at a time with the sequence's noise (``seed``), while a writer thread encodes
+    the previous batch. Leaving the block by an error discards the video."""
+    from .optics.torch_backend import DEFAULT_BATCH, BatchRenderer
+    from .sequence import SequenceOptions
+    from .sinks import DeviceFrames, VideoSink
+    from .stream import noise_generator
 
-    encode_s = 0.0
-    if isinstance(renderer, BatchRenderer):
-        with FrameBatcher(renderer, _WORKER["config"].batch or DEFAULT_BATCH, writer.write) as frames:
-            for _ in sequence(frames):
-                pass
-            t = stage_clock()
-            frames.close()                                  # the last batch, after the sequence's end
-            out.timings_s["optics"] = out.timings_s.get("optics", 0.0) + stage_clock() - t
-        return frames.sink_seconds
-    for frame in sequence(renderer):
-        te = stage_clock()
-        writer.write(frame)
-        encode_s += stage_clock() - te
-    return encode_s
+    config: GenerateConfig = _WORKER["config"]
+    with contextlib.ExitStack() as stack:
+        writer = stack.enter_context(VideoSink(video, fmt=config.format, fps=fps))
+        if not isinstance(renderer, BatchRenderer):
+            yield SequenceOptions(renderer=renderer, sensor_seed=config.seed), [writer]
+            return
+        device = stack.enter_context(DeviceFrames(renderer, config.batch or DEFAULT_BATCH, noise_generator(seed),
+                                                  [writer]))
+        yield SequenceOptions(sensor_seed=config.seed, outputs={"imprint", "markers"}), [device]
 
 
 def generate_sequence(spec: SequenceSpec) -> dict:
     """Simulate, render, encode and record one sequence (in a worker). Returns its record."""
     from .motion import sample_motion
-    from .sequence import SequenceOutput, render_sequence, stage_clock
-    from .video import VideoWriter, video_path
+    from .sequence import render_sequence
+    from .sinks import drain
+    from .stream import stage_clock
+    from .video import video_path
 
     w = _WORKER
     config: GenerateConfig = w["config"]
@@ -480,23 +465,21 @@ def generate_sequence(spec: SequenceSpec) -> dict:
                            precontact=None if spec.precontact_frames is None
                            else (spec.precontact_frames, spec.precontact_frames),
                            ranges=w["ranges"])
-    out = SequenceOutput({}, {})
     vpath = root / video_path(spec.video_stem(), config.format)
-    with VideoWriter(vpath, fmt=config.format, fps=profile.image.fps_hz) as writer:
-        encode_s = _render_frames(renderer, writer, lambda r: render_sequence(
-            fabric, motion, profile, fidelity, seed=spec.seed, renderer=r, sensor_seed=config.seed, out=out), out)
+    with _frame_sinks(renderer, vpath, profile.image.fps_hz, spec.seed) as (options, sinks):
+        labels, timings = drain(render_sequence(fabric, motion, profile, fidelity, seed=spec.seed, options=options),
+                                sinks)
     te = stage_clock()
     lpath = root / spec.labels_rel()
-    atomic_write_npz(lpath, **out.labels)
-    encode_s += stage_clock() - te
-    in_contact = np.asarray(out.labels["in_contact"], bool)
+    atomic_write_npz(lpath, **labels)
+    timings["encode"] = timings.get("encode", 0.0) + stage_clock() - te
+    in_contact = np.asarray(labels["in_contact"], bool)
     onset = int(np.argmax(in_contact)) if in_contact.any() else -1
-    timings = dict(out.timings_s, encode=encode_s)
     record = dict(id=spec.id, fabric_id=spec.fabric_id, action=spec.action, num_frames=motion.num_frames,
                   contact_onset=onset, precontact_frames=motion.precontact_frames, split=spec.split,
                   video=str(vpath.relative_to(root)), labels=spec.labels_rel(), seed=spec.seed,
                   sha256={"video": sha256_of(vpath), "labels": sha256_of(lpath)},
-                  peak_force_n=float(np.max(out.labels["normal_force_n"])),
+                  peak_force_n=float(np.max(labels["normal_force_n"])),
                   timings_s={k: round(v, 4) for k, v in timings.items()},
                   seconds=round(time.perf_counter() - t0, 3))
     if spec.unit >= 0:
@@ -647,10 +630,16 @@ def ray_sequences(config: GenerateConfig, root: str, specs: list[SequenceSpec]) 
     return [done.get(spec.id) or generate_sequence(spec) for spec in specs]
 
 
-def _other_source(manifest: dict) -> bool:
-    """Whether ``manifest`` records other gelsim code or assets than this process's (a manifest from before
-    the ``source`` field records none: not other)."""
-    return manifest.get("source", source_digest()) != source_digest()
+def _made_otherwise(manifest: dict) -> tuple[str | None, str]:
+    """What of this process differs from what made ``manifest``'s dataset, first found: ``("libraries",
+    the versions that differ)``, ``("source", "")`` for other gelsim code or assets (a manifest from before
+    the ``source`` field records none: not other), or ``(None, "")``."""
+    diff = _library_difference(manifest.get("libraries"))
+    if diff:
+        return "libraries", diff
+    if manifest.get("source", source_digest()) != source_digest():
+        return "source", ""
+    return None, ""
 
 
 def _check_node_libraries(root: str) -> None:
@@ -659,13 +648,12 @@ def _check_node_libraries(root: str) -> None:
     naming them."""
     from .cluster import node_description
 
-    m = load_manifest(root)
-    diff = _library_difference(m.get("libraries"))
-    if diff:
+    what, diff = _made_otherwise(load_manifest(root))
+    if what == "libraries":
         raise GelsimError(f"Ray node {node_description()} has other library versions than the dataset's ({diff}), "
                           "which give other bytes from the same seed; install the same versions on every node "
                           "(make install)")
-    if _other_source(m):
+    if what == "source":
         raise GelsimError(f"Ray node {node_description()} has other gelsim code or assets than the dataset's (the "
                           "manifest's source digest differs); install the same commit on every node (make install)")
 

@@ -1,6 +1,6 @@
 """Nuisances of a real, hand-held GelSight before and around the touch (issue 43; docs/nuisance.md).
 
-Stages, each a pure function with its parameters in ``assets/nuisance.toml``:
+Stages, each a pure function with its parameters in ``gelsim/assets/nuisance.toml``:
 
 * ``fibres`` (:mod:`.fibres`): loose fibres of hairy fabrics dent the gel before the main contact; a
   depth map (mm) added to the imprint before shading;

@@ -3,7 +3,7 @@
 A webcam meters each frame and moves its exposure (one gain) and its white balance (R and B gains
 against G) towards targets; gelsim's frame at gain 1 is the settled state. The controllers follow
 libcamera's Raspberry Pi AGC and AWB rules (docs/nuisance.md, section 2; numbers in
-``assets/nuisance.toml``):
+``gelsim/assets/nuisance.toml``):
 
 * **exposure**: frame 0 is exposed at ``start`` (relative to the settled exposure). Frame t is metered;
   the exposure computed from it applies from frame ``t + delay_frames``. Within the first

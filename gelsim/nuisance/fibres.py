@@ -14,7 +14,7 @@ normal; sideways by 0.1 mm a frame or less). :func:`draw_fibres` draws them per 
 :func:`fibre_dents_mm` turns them and a frame's gap map into a depth map (mm, float32 ``(H, W)``) that
 adds to the imprint's depth before shading; :func:`gap_map_mm` and :func:`approach_gap_mm` give the gap
 from the sensor's pose. Numpy only: the imprint is computed on the CPU for every optics backend.
-Numbers and their sources: ``assets/nuisance.toml``, ``[stages.fibres]``; docs/nuisance.md.
+Numbers and their sources: ``gelsim/assets/nuisance.toml``, ``[stages.fibres]``; docs/nuisance.md.
 """
 from __future__ import annotations
 

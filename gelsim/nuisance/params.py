@@ -1,4 +1,4 @@
-"""The nuisance stages' parameters and named levels, from ``assets/nuisance.toml`` (docs/nuisance.md).
+"""The nuisance stages' parameters and named levels, from ``gelsim/assets/nuisance.toml`` (docs/nuisance.md).
 
 :func:`load_nuisance` builds a :class:`NuisanceModel`: one frozen dataclass per stage (units in the
 names; each value's source is in the data file) and the named levels, each a mapping of stage name to
@@ -136,7 +136,7 @@ def _levels(data: object, where: str) -> Mapping[str, Mapping[str, float]]:
 
 
 def load_nuisance(path: str | Path | None = None) -> NuisanceModel:
-    """Load :class:`NuisanceModel` from a TOML file (default ``assets/nuisance.toml``)."""
+    """Load :class:`NuisanceModel` from a TOML file (default ``gelsim/assets/nuisance.toml``)."""
     path = Path(path) if path is not None else NUISANCE_FILE
     data = load_toml(path)
     unknown = sorted(set(data) - {"stages", "levels"})

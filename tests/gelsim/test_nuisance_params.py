@@ -1,4 +1,4 @@
-"""gelsim.nuisance.params: the stages' parameters and levels from assets/nuisance.toml, and bad files refused."""
+"""gelsim.nuisance.params: the stages' parameters and levels from gelsim/assets/nuisance.toml, and bad files refused."""
 import pytest
 
 from gelsim.errors import GelsimError
