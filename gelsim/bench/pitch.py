@@ -28,7 +28,7 @@ from .texture import texture_band
 # The catalog's finest textures (texture scale 0.11-0.36 mm), and a weave either side of 4 px per
 # period at the fast level's half-scale 960x720 imprint grid (0.039 mm per px: 0.158 mm).
 PITCH_FABRICS = (13, 44, 15, 30, 14, 17, 2, 4, 1, 8)
-# Mid-range hand press (gelsim/assets/motions.toml: 1-4 N).
+# Mid-range hand press (assets/motions.toml: 1-4 N).
 PITCH_FORCE_N = 2.5
 # (model, imprint scale) variants of the balanced level compared with its elastic model at full scale.
 PITCH_VARIANTS = (("twoscale", 0.5), ("twoscale", 1.0), ("pyramid", 0.5), ("pyramid", 1.0))
