@@ -56,6 +56,7 @@ class GenerateConfig:
     units: int = 0          # sensor units drawn from the profile's [unit_variation]; 0 = the profile itself
     split: tuple[float, float, float] = SPLIT_WEIGHTS   # train:val:test weights, apportioned per fabric
     backend: str | None = None   # render backend (gelsim.optics.BACKENDS); None = the fidelity level's
+    nuisance: str = "none"       # a level of gelsim/assets/nuisance.toml (docs/nuisance.md); "none": no stage runs
     # Where and how many frames at a time the torch backend renders: how, not what (the same bytes for
     # any batch, the same dataset within the backend's tolerance on any device), so not in options().
     device: str | None = None    # None = the CPU
@@ -387,12 +388,24 @@ def _worker_init(config: GenerateConfig, root: str) -> None:
         profile = profile.with_resolution(*config.resolution)
     fidelity = get_fidelity(config.fidelity)
     _WORKER.update(config=config, root=Path(root), catalog=load_catalog(), profile=profile, fidelity=fidelity,
-                   ranges=load_motion_ranges(), units=unit_profiles(config, profile), unit_renderers={})
+                   ranges=load_motion_ranges(), units=unit_profiles(config, profile), unit_renderers={},
+                   **nuisance_level(config))
     if config.render_backend(fidelity) == "torch":
         import torch
 
         torch.set_num_threads(1)  # one process per core, as for OpenCV (a GPU does the heavy work)
     _WORKER["renderer"] = _renderer(profile)
+
+
+def nuisance_level(config: GenerateConfig) -> dict:
+    """``config.nuisance``'s stages: ``nuisance`` (stage -> severity; empty for ``none``, which loads nothing)
+    and ``nuisance_stages`` (their parameters, or None). An unknown level is a one-line GelsimError."""
+    if config.nuisance == "none":
+        return dict(nuisance={}, nuisance_stages=None)
+    from .nuisance import load_nuisance
+
+    model = load_nuisance()
+    return dict(nuisance=model.level(config.nuisance), nuisance_stages=model.stages)
 
 
 def _renderer(profile):
@@ -436,14 +449,15 @@ def _frame_sinks(renderer, video: Path, fps: float, seed: int):
     from .stream import noise_generator
 
     config: GenerateConfig = _WORKER["config"]
+    nuisance = dict(nuisance=_WORKER["nuisance"], nuisance_stages=_WORKER["nuisance_stages"])
     with contextlib.ExitStack() as stack:
         writer = stack.enter_context(VideoSink(video, fmt=config.format, fps=fps))
         if not isinstance(renderer, BatchRenderer):
-            yield SequenceOptions(renderer=renderer, sensor_seed=config.seed), [writer]
+            yield SequenceOptions(renderer=renderer, sensor_seed=config.seed, **nuisance), [writer]
             return
         device = stack.enter_context(DeviceFrames(renderer, config.batch or DEFAULT_BATCH, noise_generator(seed),
                                                   [writer]))
-        yield SequenceOptions(sensor_seed=config.seed, outputs={"imprint", "markers"}), [device]
+        yield SequenceOptions(sensor_seed=config.seed, outputs={"imprint", "markers"}, **nuisance), [device]
 
 
 def generate_sequence(spec: SequenceSpec) -> dict:
@@ -724,6 +738,7 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
     if not 0 <= config.units <= MAX_UNITS:
         raise GelsimError(f"--units {config.units} is out of range; give 0 (the profile itself) to {MAX_UNITS}")
     unit_profiles(config, profile)  # a profile without [unit_variation] fails here, before anything is written
+    nuisance_level(config)          # an unknown level fails here too
     specs = plan(config, len(catalog))
     root = Path(out)
     connection = contextlib.nullcontext(None)

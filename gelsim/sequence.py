@@ -34,8 +34,8 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
-from typing import Collection, Iterator
+from dataclasses import dataclass, field
+from typing import Collection, Iterator, Mapping
 
 import cv2
 import numpy as np
@@ -74,7 +74,9 @@ class SequenceOptions:
     :class:`gelsim.sinks.DeviceFrames`). ``contact``: a finished contact simulation of this motion to reuse
     (no physics run; e.g. to compare fidelity levels on the same contact). ``surface`` and ``patch``: the
     object's physics surface and image-resolution heights when already built (default:
-    :func:`gelsim.scene.physics_surface` and :func:`gelsim.scene.travel_patch`).
+    :func:`gelsim.scene.physics_surface` and :func:`gelsim.scene.travel_patch`). ``nuisance``: stage ->
+    severity of a nuisance level (:meth:`gelsim.nuisance.NuisanceModel.level`; empty: none, today's
+    frames), ``nuisance_stages`` the stages' parameters (default: gelsim/assets/nuisance.toml's).
     """
     renderer: Renderer | None = None
     sensor_seed: int = 0
@@ -83,6 +85,8 @@ class SequenceOptions:
     contact: ContactFrames | None = None
     surface: Surface | None = None
     patch: HeightPatch | None = None
+    nuisance: Mapping[str, float] = field(default_factory=dict)
+    nuisance_stages: object = None
 
     def __post_init__(self):
         outputs = frozenset(self.outputs)
@@ -173,6 +177,15 @@ def render_sequence(obj: TouchedObject, motion: Motion, profile: SensorProfile, 
     setup = FrameSetup.make(profile, fidelity, sensor_seed=o.sensor_seed, markers=want_markers, renderer=renderer)
     timer.lap("fabric")
 
+    nuis = None
+    if o.nuisance:
+        from .nuisance import load_nuisance
+        from .nuisance.sequence import SequenceNuisance
+
+        stages = o.nuisance_stages if o.nuisance_stages is not None else load_nuisance().stages
+        hairiness = float(getattr(getattr(obj, "fabric", None), "hairiness", 0.0) or 0.0)
+        nuis = SequenceNuisance(o.nuisance, stages, seed, hairiness, profile, motion)
+        timer.lap("nuisance")
     state = contact.to_dict()
     rng = noise_generator(seed)
     window = "touched" if o.shortcuts else "full"
@@ -194,11 +207,13 @@ def render_sequence(obj: TouchedObject, motion: Motion, profile: SensorProfile, 
                           envelope_mm=None if envelope is None else functools.partial(envelope.sample, *pose),
                           properties=props)
             timer.lap("fabric")
-        imprint, markers, frame = make_frame(touch, setup, seed=rng, timer=timer)
+        extra = None if nuis is None else functools.partial(nuis.frame, i, tilt_deg=contact.tilt_deg[i])
+        imprint, markers, frame = make_frame(touch, setup, seed=rng, timer=timer, nuisance=extra)
+        extra = None if nuis is None else nuis.last
         if touch is not None:
             prev = imprint if touching else None
         labels = _frame_labels({k: v[i] for k, v in state.items()}, imprint, markers, want_imprint, want_markers)
-        yield FrameRecord(i, touch, imprint, markers, frame, labels, timer.take())
+        yield FrameRecord(i, touch, imprint, markers, frame, labels, timer.take(), extra)
         timer.restart()  # time spent by the consumer (encoding) is not ours
 
 

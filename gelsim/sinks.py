@@ -193,8 +193,10 @@ class DeviceFrames:
         """Render the queued frames (asynchronously on a GPU) and pass the previous batch to the writer."""
         if not self._records:
             return
-        depth, corners = self.br.stage([r.depth_mm for r in self._records], [r.markers for r in self._records])
-        out = self.br.quantise(self.br.compose(depth, corners, self._offsets), self._offsets)
+        depth, corners = self.br.stage([r.render_depth_mm for r in self._records], [r.markers for r in self._records])
+        gains = [r.gains for r in self._records]
+        out = self.br.quantise(self.br.compose(depth, corners, self._offsets,
+                                               None if all(g is None for g in gains) else gains), self._offsets)
         if out.device.type == "cuda":
             import torch
 

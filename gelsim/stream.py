@@ -123,14 +123,28 @@ class FrameParts(NamedTuple):
     frame: np.ndarray | None
 
 
+def render_depth(imprint: Imprint | None, nuisance=None) -> np.ndarray | None:
+    """The depth the optics render (float32 ``(H, W)`` mm or None): the imprint's, plus the nuisance's dents
+    (:class:`gelsim.nuisance.sequence.FrameNuisance`; the fibres of a hairy fabric) where there are any. The
+    imprint itself, and so the labels, never holds the dents."""
+    depth = None if imprint is None else imprint.depth_mm
+    dents = None if nuisance is None else nuisance.dents_mm
+    if dents is None:
+        return depth
+    return dents if depth is None else depth + dents
+
+
 def make_frame(touch: Touch | None, setup: FrameSetup, *, seed: int | np.random.Generator = 0, noise: bool = True,
-               timer: StageTimer | None = None) -> FrameParts:
+               timer: StageTimer | None = None, nuisance=None) -> FrameParts:
     """One tactile frame: ``touch`` pressed into the gel, the markers it moves, the camera's image.
 
     ``touch`` None: nothing presses (no imprint; the markers at rest; the flat gel). ``seed``: this
     frame's camera noise (an int, or the sequence's :func:`noise_generator`, drawn from once per
     rendered frame); ``noise``: False for a noiseless frame. ``timer``: gets the stages' times
-    (``imprint``, ``markers``, ``optics``), each only when the stage ran.
+    (``imprint``, ``markers``, ``optics``), each only when the stage ran. ``nuisance``: this frame's
+    :class:`gelsim.nuisance.sequence.FrameNuisance` (fibre dents added to the rendered depth, camera gains),
+    or a function of the imprint (None before contact) returning one (its time goes to ``nuisance``), or
+    None (nothing: today's frame).
     """
     timer = timer if timer is not None else StageTimer()
     prof, fid = setup.profile, setup.fidelity
@@ -139,6 +153,9 @@ def make_frame(touch: Touch | None, setup: FrameSetup, *, seed: int | np.random.
         imprint = press(touch.protrusion_mm, prof, fid, force_n=touch.force_n, depth_mm=touch.depth_mm,
                         window=touch.window, warm=touch.warm, envelope_mm=touch.envelope_mm, **touch.properties)
         timer.lap("imprint")
+    if callable(nuisance):
+        nuisance = nuisance(imprint)
+        timer.lap("nuisance")
     markers = setup.flat_markers
     if markers is not None:
         if imprint is not None:
@@ -147,7 +164,8 @@ def make_frame(touch: Touch | None, setup: FrameSetup, *, seed: int | np.random.
         timer.lap("markers")
     frame = None
     if setup.renderer is not None:
-        frame = setup.renderer.render(None if imprint is None else imprint.depth_mm, markers, seed=seed, noise=noise)
+        frame = setup.renderer.render(render_depth(imprint, nuisance), markers, seed=seed, noise=noise,
+                                      gains=None if nuisance is None else nuisance.gains)
         timer.lap("optics")
     return FrameParts(imprint, markers, frame)
 
@@ -172,11 +190,22 @@ class FrameRecord:
     frame: np.ndarray | None
     labels: Mapping[str, np.ndarray]
     seconds: Mapping[str, float]
+    nuisance: Any = None
 
     @property
     def depth_mm(self) -> np.ndarray | None:
         """The imprint's depth, float32 (H, W) mm, or None (the flat gel)."""
         return None if self.imprint is None else self.imprint.depth_mm
+
+    @property
+    def render_depth_mm(self) -> np.ndarray | None:
+        """The depth the optics render: :func:`render_depth` of the imprint and the nuisance."""
+        return render_depth(self.imprint, self.nuisance)
+
+    @property
+    def gains(self) -> np.ndarray | None:
+        """The camera's per-channel gains (3,) of this frame, or None (all 1)."""
+        return None if self.nuisance is None else self.nuisance.gains
 
 
 def sequence_labels(rows: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:

@@ -42,6 +42,11 @@ def register(sub) -> None:
                    help="pre-contact frames per sequence (sensor approaching, nothing touching), uniform in the "
                         "range [default: gelsim/assets/motions.toml's: 0-1 frames, as both rows of the paper's Table II "
                         "imply (docs/nuisance.md)]")
+    p.add_argument("--nuisance", metavar="LEVEL",
+                   help="what a real, hand-held sensor adds before and around the touch, a level of "
+                        "gelsim/assets/nuisance.toml: none, camera (the webcam's auto-exposure and white balance "
+                        "settling), handheld (camera + loose fibres of hairy fabrics); labels never change "
+                        "(docs/nuisance.md) [default: none]")
     p.add_argument("--profile", metavar="NAME|PATH", help="sensor profile [default: vitac, 960x720]")
     p.add_argument("--resolution", metavar="WxH", help="render at this size, same field of view in mm [default: the profile's]")
     p.add_argument("--fidelity", choices=["fast", "balanced", "reference"], help="speed/accuracy level [default: balanced]")
@@ -113,7 +118,7 @@ def config_from_args(args: argparse.Namespace):
              "precontact": lambda text: parse_range(text, "--precontact", lo=0),
              "resolution": parse_resolution}
     for name in ("fabrics", "sequences_per_fabric", "actions", "split", "frames", "precontact", "profile",
-                 "resolution", "fidelity", "seed", "format", "backend", "device", "batch"):
+                 "resolution", "fidelity", "seed", "format", "backend", "device", "batch", "nuisance"):
         value = getattr(args, name)
         if value is not None:
             values[name] = parse[name](value) if name in parse else value

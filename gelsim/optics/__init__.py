@@ -111,22 +111,23 @@ class Renderer:
         """The flat gel without markers or noise, unquantised: float32 ``(H, W, 3)`` DN (a copy)."""
         return self.optics.background.copy()
 
-    def render_float(self, depth_mm: np.ndarray | None, markers=None) -> np.ndarray:
+    def render_float(self, depth_mm: np.ndarray | None, markers=None, *, gains=None) -> np.ndarray:
         """The noiseless, unquantised frame: float32 ``(H, W, 3)`` DN (may leave 0-255 before saturation)."""
-        return self._run(depth_mm, markers).copy()
+        return self._run(depth_mm, markers, gains=gains).copy()
 
     def render(self, depth_mm: np.ndarray | None, markers=None, *, seed: int | np.random.Generator = 0,
-               noise: bool = True) -> np.ndarray:
+               noise: bool = True, gains=None) -> np.ndarray:
         """One camera frame: uint8 ``(H, W, 3)`` RGB.
 
         ``depth_mm``: float32 ``(H, W)`` imprint in mm (>= 0), or None for a flat
         gel; ``markers``: an object with ``.corners_px`` float32 ``(N, 4, 2)``
         (x, y) px, such an array, or None; ``seed``: picks this frame's noise
-        (same seed, same frame); ``noise``: False for a noiseless frame.
+        (same seed, same frame); ``noise``: False for a noiseless frame; ``gains``: the camera's
+        per-channel gains (3,) before the noise (:class:`~gelsim.optics.composite.CameraGains`; None: 1).
         """
-        return self._run(depth_mm, markers, frame_rng(seed), noise)
+        return self._run(depth_mm, markers, frame_rng(seed), noise, gains)
 
-    def _run(self, depth_mm, markers, rng=None, noise: bool = True) -> np.ndarray:
+    def _run(self, depth_mm, markers, rng=None, noise: bool = True, gains=None) -> np.ndarray:
         """The frame through the shading and the stages: uint8 with ``rng`` (:func:`~gelsim.optics.composite.frame_rng`,
         each stage drawing from it in turn), else the float frame before the readout (the cached background itself, or a work buffer
         that the next frame overwrites: callers must not modify or keep it).
@@ -139,7 +140,7 @@ class Renderer:
         depth = check_depth(depth_mm, self._shape)
         if depth is not None and self.supersample > 1:
             depth = upsample(depth, self.supersample, self._fine_shape[:2])
-        inp = FrameInput(depth, markers, self._fine_shape)
+        inp = FrameInput(depth, markers, self._fine_shape, gains)
         stages = self.stages if final else [st for st in self.stages if not st.final]
         active = []
         for st in stages:

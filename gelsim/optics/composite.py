@@ -8,7 +8,8 @@ A frame is composed in this order, in float32 DN until the readout:
    LEDs), then, with a table, its terms in :class:`~gelsim.optics.lut.TableModel`'s order: the LEDs'
    soft shadows and the depth and halo terms;
 2. the **stages** of :data:`STAGES`, in order: :class:`Markers` (``x (1 - darkness * blur(coverage))``),
-   :class:`AreaAverage` (supersampling's average back down), :class:`Readout` (camera noise, then
+   :class:`CameraGains` (the webcam's exposure and white balance, a per-channel gain per frame; only with
+   a nuisance level, :mod:`gelsim.nuisance`), :class:`AreaAverage` (supersampling's average back down), :class:`Readout` (camera noise, then
    8-bit quantisation; always last).
 
 A stage carries its numpy kernel and its torch kernel (both calling the primitives of
@@ -39,7 +40,7 @@ from .ops.markers import apply_marker_factors, fine_px, marker_corners, marker_f
 from .ops.readout import NoiseBank, readout_torch, to_uint8_rows
 from .ops.resample import area_mean, area_mean_torch
 
-__all__ = ["Optics", "FrameInput", "BatchInput", "Stage", "Markers", "AreaAverage", "Readout", "STAGES",
+__all__ = ["Optics", "FrameInput", "BatchInput", "Stage", "Markers", "CameraGains", "AreaAverage", "Readout", "STAGES",
            "check_depth", "frame_rng", "marker_corners"]
 
 
@@ -119,18 +120,21 @@ def frame_rng(seed: int | np.random.Generator):
 class FrameInput:
     """One frame's inputs to the numpy stages: ``depth`` the imprint at the fine resolution (float32 mm,
     validated) or None; ``markers`` as given to :meth:`Renderer.render` (output pixels); ``shape`` the
-    fine frame's ``(sH, sW, 3)``."""
+    fine frame's ``(sH, sW, 3)``; ``gains`` the camera's per-channel gains ``(3,)`` or None (all 1)."""
     depth: np.ndarray | None
     markers: object
     shape: tuple[int, int, int]
+    gains: np.ndarray | None = None
 
 
 @dataclass
 class BatchInput:
     """``B`` frames' inputs to the torch stages: ``depth`` ``(B, sH, sW)`` mm at the fine resolution and
-    ``corners`` ``(B, N, 4, 2)`` output pixels (None without markers), tensors on the device."""
+    ``corners`` ``(B, N, 4, 2)`` output pixels (None without markers), tensors on the device; ``gains``
+    each frame's camera gains ``(3,)`` or None, a list (None: no frame has any)."""
     depth: object
     corners: object
+    gains: list | None = None
 
 
 class Stage(ABC):
@@ -216,6 +220,42 @@ class Markers(Stage):
                                             self.optics.blur_sigma_px)[:, None]
 
 
+def check_gains(gains) -> np.ndarray | None:
+    """A frame's camera gains as float32 ``(3,)`` (rounded once, so both kernels multiply by the same
+    numbers), or None for None; anything but three finite numbers >= 0 is a GelsimError."""
+    if gains is None:
+        return None
+    g = np.asarray(gains, np.float64)
+    if g.shape != (3,) or not np.all(np.isfinite(g)) or np.any(g < 0):
+        raise GelsimError(f"camera gains {gains!r} must be three finite numbers >= 0 (R, G, B)")
+    return g.astype(np.float32)
+
+
+class CameraGains(Stage):
+    """The webcam's exposure and white balance: the frame times per-channel gains (one per frame, given with
+    the frame: :class:`gelsim.nuisance.sequence.SequenceNuisance`, which draws them per sequence). Before the
+    noise, since a sensor's read noise does not scale with exposure. Nothing where a frame has no gains
+    (every frame without a nuisance level: today's bytes)."""
+
+    name = "camera gains"
+
+    def prepare(self, frame: FrameInput, draw):
+        return check_gains(frame.gains)
+
+    def apply(self, rows, y0, state):
+        rows *= state
+        return rows
+
+    def apply_torch(self, frames, batch, draws):
+        gains = None if batch is None else batch.gains
+        if gains is None or all(g is None for g in gains):
+            return frames
+        import torch
+
+        g = np.stack([np.ones(3, np.float32) if g is None else check_gains(g) for g in gains])
+        return frames * torch.from_numpy(g).to(frames.device)[:, :, None, None]
+
+
 class AreaAverage(Stage):
     """Supersampling's last step: the frame averaged over ``s x s`` blocks, back to the profile's
     resolution (:func:`~gelsim.optics.ops.resample.area_mean`); nothing without supersampling."""
@@ -279,4 +319,4 @@ class Readout(Stage):
 
 
 #: The stages after the shading, in order (the readout last).
-STAGES: tuple[type[Stage], ...] = (Markers, AreaAverage, Readout)
+STAGES: tuple[type[Stage], ...] = (Markers, CameraGains, AreaAverage, Readout)

@@ -255,9 +255,10 @@ class BatchRenderer:
             t = t.pin_memory()
         return t.to(self.device, non_blocking=self._pinned)
 
-    def compose(self, depth, corners, draws: list | None = None):
+    def compose(self, depth, corners, draws: list | None = None, gains: list | None = None):
         """The frames before the readout, float32 ``(B, 3, H, W)`` DN on the device, from :meth:`stage`'s
-        ``depth`` and ``corners`` (``draws``: each frame's :meth:`draw`, for the stages before the readout)."""
+        ``depth`` and ``corners`` (``draws``: each frame's :meth:`draw`, for the stages before the readout;
+        ``gains``: each frame's camera gains (3,) or None, as :meth:`Renderer.render` takes them)."""
         d = self._to_device(depth)
         s = self.s
         if s > 1:
@@ -265,7 +266,9 @@ class BatchRenderer:
         frame = self._bg[None]
         for part in self.shader.shade_parts(d, self._blur, self._margin):
             frame = frame + part
-        batch = BatchInput(d, None if corners is None else self._to_device(corners))
+        if gains is not None and len(gains) != len(d):
+            raise GelsimError(f"{len(gains)} frames' gains for a batch of {len(d)}; give one (or None) per frame")
+        batch = BatchInput(d, None if corners is None else self._to_device(corners), gains)
         for i, st in enumerate(self.stages[:self._final]):
             frame = st.apply_torch(frame, batch, _column(draws, i, len(d)))
         return frame
@@ -278,7 +281,7 @@ class BatchRenderer:
         return st.apply_torch(frame, None, _column(offsets, self._final, frame.shape[0]))
 
     def render(self, depths: list, markers: list | None = None, seeds: list | None = None, *,
-               noise: bool = True) -> np.ndarray:
+               noise: bool = True, gains: list | None = None) -> np.ndarray:
         """uint8 ``(B, H, W, 3)`` RGB: the frames :meth:`Renderer.render` gives for the same inputs (within
         the stated tolerance); ``seeds`` one per frame (default 0)."""
         n = len(depths)
@@ -286,12 +289,13 @@ class BatchRenderer:
         seeds = seeds if seeds is not None else [0] * n
         draws = [self.draw(s, noise) for s in seeds]
         depth, corners = self.stage(depths, markers)
-        return self.quantise(self.compose(depth, corners, draws), draws).cpu().numpy()
+        return self.quantise(self.compose(depth, corners, draws, gains), draws).cpu().numpy()
 
-    def render_float(self, depths: list, markers: list | None = None) -> np.ndarray:
+    def render_float(self, depths: list, markers: list | None = None, *, gains: list | None = None) -> np.ndarray:
         """Noiseless, unquantised frames: float32 ``(B, H, W, 3)`` DN (as :meth:`Renderer.render_float`)."""
         markers = markers if markers is not None else [None] * len(depths)
-        return np.ascontiguousarray(self.compose(*self.stage(depths, markers)).permute(0, 2, 3, 1).cpu().numpy())
+        depth, corners = self.stage(depths, markers)
+        return np.ascontiguousarray(self.compose(depth, corners, None, gains).permute(0, 2, 3, 1).cpu().numpy())
 
 
 def _column(draws: list | None, i: int, n: int) -> list:

@@ -18,9 +18,9 @@ def small(vitac):
 
 
 def test_the_order_of_the_stages():
-    assert [s.name for s in C.STAGES] == ["markers", "area average", "readout"]
-    assert [s.final for s in C.STAGES] == [False, False, True]          # the readout last
-    assert [s.banded for s in C.STAGES] == [True, False, True]          # the average needs the whole frame
+    assert [s.name for s in C.STAGES] == ["markers", "camera gains", "area average", "readout"]
+    assert [s.final for s in C.STAGES] == [False, False, False, True]          # the readout last
+    assert [s.banded for s in C.STAGES] == [True, True, False, True]           # the average needs the whole frame
     for stage in C.STAGES:
         assert not getattr(stage, "__abstractmethods__", None), stage    # numpy and torch kernels both
 
