@@ -1,6 +1,7 @@
 """What the nuisance stages do to a dataset's frames, and to the image-based contact-onset detector.
 
-For a stage-free dataset NONE and nuisance copies of it (benchmarks/nuisance_dataset.py), per copy:
+For a stage-free dataset NONE and copies of it made with the same options and ``--nuisance LEVEL``
+(``gelsim generate``), per dataset:
 
 * the labels are byte-identical to NONE's (every sequence's labels sha256);
 * how far the frames before contact (the manifest's ``contact_onset``) move from NONE's: mean |difference|
@@ -45,6 +46,11 @@ def main(argv=None) -> int:
     cache: dict[str, np.ndarray] = {}
     for d in dirs:
         m = _load(d)
+        other = {k for k in set(m["options"]) | set(mb["options"])
+                 if k not in ("nuisance", "nuisance_severity") and m["options"].get(k) != mb["options"].get(k)}
+        if other:
+            raise SystemExit(f"gelsim: error: {d} was made with other options than {base} ({', '.join(sorted(other))}); "
+                             "give copies made with the same options and --nuisance")
         lab_same = all(s["sha256"]["labels"] == seqs[s["id"]]["sha256"]["labels"] for s in m["sequences"])
         diffs, over, n_pre, exact, within, n = [], 0, 0, 0, 0, 0
         for s in m["sequences"]:
@@ -69,7 +75,8 @@ def main(argv=None) -> int:
                 exact += int(det == onset)
                 within += int(det is not None and abs(det - onset) <= 1)
         name = "none" if d == base else d.name
-        res = {"dir": str(d), "stages": m.get("nuisance", {}).get("stages", {}), "labels_identical": lab_same,
+        res = {"dir": str(d), "level": m["options"].get("nuisance", "none"),
+               "severity": m["options"].get("nuisance_severity"), "labels_identical": lab_same,
                "precontact_mean_abs_diff_dn": float(np.mean(diffs)) if diffs else 0.0,
                "onset_exact": exact, "onset_within_1": within, "sequences": n,
                "onset_exact_ci": wilson_interval(exact, n), "onset_within_1_ci": wilson_interval(within, n)}
@@ -77,7 +84,7 @@ def main(argv=None) -> int:
             res["precontact_frames_over_bar"] = over
             res["precontact_frames"] = n_pre
         results[name] = res
-        print(f"{name}: stages {res['stages']}; labels identical {lab_same}; pre-contact |diff| "
+        print(f"{name}: level {res['level']} severity {res['severity']}; labels identical {lab_same}; pre-contact |diff| "
               f"{res['precontact_mean_abs_diff_dn']:.2f} DN"
               + (f", {over}/{n_pre} pre-contact frames change by more than the {DEFAULT_ONSET_THRESHOLD:g} DN bar"
                  if d != base else "")

@@ -57,6 +57,7 @@ class GenerateConfig:
     split: tuple[float, float, float] = SPLIT_WEIGHTS   # train:val:test weights, apportioned per fabric
     backend: str | None = None   # render backend (gelsim.optics.BACKENDS); None = the fidelity level's
     nuisance: str = "none"       # a level of gelsim/assets/nuisance.toml (docs/nuisance.md); "none": no stage runs
+    nuisance_severity: float | None = None   # every stage of the level at this severity (0-4); None: the file's
     # Where and how many frames at a time the torch backend renders: how, not what (the same bytes for
     # any batch, the same dataset within the backend's tolerance on any device), so not in options().
     device: str | None = None    # None = the CPU
@@ -398,14 +399,15 @@ def _worker_init(config: GenerateConfig, root: str) -> None:
 
 
 def nuisance_level(config: GenerateConfig) -> dict:
-    """``config.nuisance``'s stages: ``nuisance`` (stage -> severity; empty for ``none``, which loads nothing)
+    """``config.nuisance``'s stages at ``config.nuisance_severity``: ``nuisance`` (stage -> severity; empty for
+    ``none``, which loads nothing)
     and ``nuisance_stages`` (their parameters, or None). An unknown level is a one-line GelsimError."""
-    if config.nuisance == "none":
+    if config.nuisance == "none" and config.nuisance_severity is None:
         return dict(nuisance={}, nuisance_stages=None)
     from .nuisance import load_nuisance
 
     model = load_nuisance()
-    return dict(nuisance=model.level(config.nuisance), nuisance_stages=model.stages)
+    return dict(nuisance=model.level(config.nuisance, config.nuisance_severity), nuisance_stages=model.stages)
 
 
 def _renderer(profile):

@@ -47,6 +47,9 @@ def register(sub) -> None:
                         "gelsim/assets/nuisance.toml: none, camera (the webcam's auto-exposure and white balance "
                         "settling), handheld (camera + loose fibres of hairy fabrics); labels never change "
                         "(docs/nuisance.md) [default: none]")
+    p.add_argument("--nuisance-severity", metavar="S", type=float,
+                   help="every stage of --nuisance's level at severity S: 0 off, 1 the data file's, up to 4 "
+                        "(a sweep's knob) [default: the level's]")
     p.add_argument("--profile", metavar="NAME|PATH", help="sensor profile [default: vitac, 960x720]")
     p.add_argument("--resolution", metavar="WxH", help="render at this size, same field of view in mm [default: the profile's]")
     p.add_argument("--fidelity", choices=["fast", "balanced", "reference"], help="speed/accuracy level [default: balanced]")
@@ -118,7 +121,8 @@ def config_from_args(args: argparse.Namespace):
              "precontact": lambda text: parse_range(text, "--precontact", lo=0),
              "resolution": parse_resolution}
     for name in ("fabrics", "sequences_per_fabric", "actions", "split", "frames", "precontact", "profile",
-                 "resolution", "fidelity", "seed", "format", "backend", "device", "batch", "nuisance"):
+                 "resolution", "fidelity", "seed", "format", "backend", "device", "batch", "nuisance",
+                 "nuisance_severity"):
         value = getattr(args, name)
         if value is not None:
             values[name] = parse[name](value) if name in parse else value
