@@ -10,8 +10,10 @@ Stages, each a pure function with its parameters in ``gelsim/assets/nuisance.tom
 
 Named levels (``none``, ``camera``, ``handheld``) say which stages run at which severity
 (:meth:`NuisanceModel.level`); ``none`` runs nothing and draws nothing. Each stage draws from its own
-generator per sequence (:func:`stage_rng`). Not yet wired into the frame stream (gelsim.sequence,
-gelsim.dataset, gelsim.optics): that follows the stream and optics refactors of issue 41.
+generator per sequence (:func:`stage_rng`). The frame stream runs them through
+:class:`.sequence.SequenceNuisance` (:func:`gelsim.sequence.render_sequence`, ``gelsim generate --nuisance``):
+the fibres' dents go into the depth the optics render, the camera's gains into
+:class:`gelsim.optics.composite.CameraGains`.
 """
 from __future__ import annotations
 
