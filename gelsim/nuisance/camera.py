@@ -18,8 +18,8 @@ libcamera's Raspberry Pi AGC and AWB rules (docs/nuisance.md, section 2; numbers
 
 Both are pure: a frozen state and a step ``(state, metered) -> (gain, state)``, so a frame stream can
 run them frame by frame, and :func:`exposure_gains` / :func:`white_balance_gains` run them over a whole
-sequence with the same result. :func:`apply_gains` multiplies a float32 frame by its (3,) gains (the
-torch twin is :func:`gelsim.nuisance.torch_kernels.apply_gains_torch`, bit-identical).
+sequence with the same result. The gains are applied by :class:`gelsim.optics.composite.CameraGains`
+(numpy and torch kernels, the same bits).
 """
 from __future__ import annotations
 
@@ -179,21 +179,6 @@ def white_balance_gains(channel_ratios, start, p: WhiteBalanceParams) -> np.ndar
         g, state = white_balance_step(state, row, p)
         out.append(g)
     return np.array(out).reshape(-1, 3)
-
-
-# ---------------------------------------------------------------- kernel
-
-def apply_gains(frame: np.ndarray, gains, out: np.ndarray | None = None) -> np.ndarray:
-    """``frame`` (float32 ``(H, W, 3)`` DN) times per-channel ``gains`` (3,), float32, same shape.
-    The gains are rounded to float32 first, so :func:`gelsim.nuisance.torch_kernels.apply_gains_torch`
-    gives the same bits. ``out``: an array to write into (may be ``frame``)."""
-    f = np.asarray(frame)
-    if f.dtype != np.float32 or f.ndim != 3 or f.shape[2] != 3:
-        raise GelsimError(f"frame is {f.dtype} {f.shape}; give float32 (H, W, 3) DN")
-    g = np.asarray(gains, np.float64)
-    if g.shape != (3,) or not np.all(np.isfinite(g)) or np.any(g < 0):
-        raise GelsimError(f"gains {gains} must be three finite numbers >= 0")
-    return np.multiply(f, g.astype(np.float32), out=out)
 
 
 # ---------------------------------------------------------------- both, per frame

@@ -6,10 +6,10 @@ import pytest
 import torch
 
 from gelsim.errors import GelsimError
-from gelsim.nuisance import (apply_gains, camera_start, camera_step, draw_exposure_start, draw_white_balance_start,
+from gelsim.nuisance import (camera_start, camera_step, draw_exposure_start, draw_white_balance_start,
                              exposure_gains, exposure_start, exposure_step, load_nuisance, metered_ratios, stage_rng,
                              white_balance_gains)
-from gelsim.nuisance.torch_kernels import apply_gains_torch
+from gelsim.optics.composite import BatchInput, CameraGains, FrameInput, check_gains
 
 M = load_nuisance()
 EXP, WB = M.stages.exposure, M.stages.white_balance
@@ -81,23 +81,34 @@ def test_white_balance_start_is_bounded_and_settles_then_follows_the_slow_rule()
     assert np.all(g[:, 1] == 1.0)
 
 
-def test_apply_gains_numpy_and_torch_give_the_same_bits_for_any_batch():
+def test_the_gain_kernels_numpy_and_torch_give_the_same_bits_for_any_batch():
+    """composite.CameraGains, the stage that applies these gains: its numpy kernel (on bands of rows) and
+    its torch kernel (on a batch) multiply by the same float32 gains."""
+    st = CameraGains(None)
     rng = np.random.default_rng(0)
     frames = rng.uniform(-5, 260, (3, 24, 32, 3)).astype(np.float32)
-    gains = rng.uniform(0.0, 2.0, (3, 3))
-    ref = np.stack([apply_gains(f, g) for f, g in zip(frames, gains)])
+    gains = list(rng.uniform(0.0, 2.0, (3, 3)))
+    ref = []
+    for f, g in zip(frames, gains):
+        state, out = st.prepare(FrameInput(None, None, f.shape, g), None), f.copy()
+        st.apply(out[:10], 0, state)
+        st.apply(out[10:], 10, state)
+        ref.append(out)
+    ref = np.stack(ref)
     t = torch.from_numpy(frames).permute(0, 3, 1, 2).contiguous()
-    whole = apply_gains_torch(t, gains).permute(0, 2, 3, 1).numpy()
-    one = np.concatenate([apply_gains_torch(t[i:i + 1], gains[i:i + 1]).permute(0, 2, 3, 1).numpy() for i in range(3)])
+    whole = st.apply_torch(t, BatchInput(None, None, gains), [None] * 3).permute(0, 2, 3, 1).numpy()
+    one = np.concatenate([st.apply_torch(t[i:i + 1], BatchInput(None, None, gains[i:i + 1]), [None])
+                          .permute(0, 2, 3, 1).numpy() for i in range(3)])
     assert np.array_equal(whole, ref) and np.array_equal(one, ref)
-    assert np.array_equal(apply_gains(frames[0], np.ones(3)), frames[0])       # gain 1: the same bytes
+    assert not np.array_equal(ref[0], frames[0])
+    assert st.prepare(FrameInput(None, None, frames[0].shape), None) is None                 # no gains: nothing
+    assert st.apply_torch(t, BatchInput(None, None, None), [None] * 3) is t
 
 
 @pytest.mark.parametrize("call", [
-    lambda: apply_gains(np.zeros((4, 4, 3), np.uint8), [1, 1, 1]),
-    lambda: apply_gains(np.zeros((4, 4, 3), np.float32), [1, -1, 1]),
-    lambda: apply_gains(np.zeros((4, 4, 3), np.float32), [1, 1]),
-    lambda: apply_gains_torch(torch.zeros(2, 3, 4, 4), np.ones((3, 3))),
+    lambda: check_gains([1, -1, 1]),
+    lambda: check_gains([1, 1]),
+    lambda: CameraGains(None).apply_torch(torch.zeros(2, 3, 4, 4), BatchInput(None, None, [[1, 1, 1], [1, 1]]), [None] * 2),
     lambda: exposure_gains([1.0, 0.0], 0.5, EXP),
     lambda: exposure_gains([1.0, float("nan")], 0.5, EXP),
     lambda: exposure_start(-0.1, EXP),
