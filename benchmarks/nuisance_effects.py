@@ -10,9 +10,12 @@ For a stage-free dataset NONE and copies of it made with the same options and ``
   (``stam.data.DEFAULT_ONSET_THRESHOLD``, 5 DN: above the H.264 steps of still frames and 6x the camera
   noise measured on lossless video, docs/stam.md), so more than the camera noise;
 * the onset detector's agreement with the true onset (``stam.data.detect_onset`` with its defaults):
-  exact and within one frame, with 95% Wilson intervals.
+  exact and within one frame, with 95% Wilson intervals, and its errors (detected - true, frames).
 
-    .venv/bin/python benchmarks/nuisance_effects.py NONE COPY [COPY ...] [--json OUT.json]
+``--figure PNG``: the first four frames of one sequence (the hairiest fabric's first sequence that starts
+before contact) in every dataset, and each copy's difference from NONE's (x4).
+
+    .venv/bin/python benchmarks/nuisance_effects.py NONE COPY [COPY ...] [--json OUT.json] [--figure OUT.png]
 """
 from __future__ import annotations
 
@@ -37,6 +40,7 @@ def main(argv=None) -> int:
     p.add_argument("none")
     p.add_argument("copies", nargs="+")
     p.add_argument("--json")
+    p.add_argument("--figure")
     a = p.parse_args(argv)
     base = Path(a.none)
     mb = _load(base)
@@ -53,6 +57,7 @@ def main(argv=None) -> int:
                              "give copies made with the same options and --nuisance")
         lab_same = all(s["sha256"]["labels"] == seqs[s["id"]]["sha256"]["labels"] for s in m["sequences"])
         diffs, over, n_pre, exact, within, n = [], 0, 0, 0, 0, 0
+        errors: dict[str, int] = {}
         for s in m["sequences"]:
             fr = read_video(d / s["video"])
             onset = int(s["contact_onset"])
@@ -73,13 +78,16 @@ def main(argv=None) -> int:
             if onset >= 0:
                 n += 1
                 exact += int(det == onset)
+                key = "none" if det is None else str(det - onset)
+                errors[key] = errors.get(key, 0) + 1
                 within += int(det is not None and abs(det - onset) <= 1)
         name = "none" if d == base else d.name
         res = {"dir": str(d), "level": m["options"].get("nuisance", "none"),
                "severity": m["options"].get("nuisance_severity"), "labels_identical": lab_same,
                "precontact_mean_abs_diff_dn": float(np.mean(diffs)) if diffs else 0.0,
                "onset_exact": exact, "onset_within_1": within, "sequences": n,
-               "onset_exact_ci": wilson_interval(exact, n), "onset_within_1_ci": wilson_interval(within, n)}
+               "onset_exact_ci": wilson_interval(exact, n), "onset_within_1_ci": wilson_interval(within, n),
+               "onset_errors": dict(sorted(errors.items(), key=lambda kv: (kv[0] == "none", int(kv[0]) if kv[0] != "none" else 0)))}
         if d != base:
             res["precontact_frames_over_bar"] = over
             res["precontact_frames"] = n_pre
@@ -92,7 +100,42 @@ def main(argv=None) -> int:
               f"95% CI {100 * res['onset_within_1_ci'][0]:.1f}-{100 * res['onset_within_1_ci'][1]:.1f})", flush=True)
     if a.json:
         Path(a.json).write_text(json.dumps(results, indent=1))
+    if a.figure:
+        _figure(dirs, mb, Path(a.figure))
     return 0
+
+
+def _figure(dirs: list[Path], mb: dict, out: Path) -> None:
+    """Frames 0-3 of one sequence per dataset, and each copy's |difference| from the first dataset's (x4)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from gelsim.fabrics import load_catalog
+    from gelsim.video import read_video
+
+    cat = load_catalog()
+    seqs = [s for s in mb["sequences"] if s["contact_onset"] >= 1]
+    s = max(seqs, key=lambda r: (cat[r["fabric_id"]].hairiness, -int(r["id"].split("s")[-1])))
+    frames = [read_video(d / s["video"])[:4] for d in dirs]
+    rows = len(dirs) + len(dirs) - 1
+    fig, ax = plt.subplots(rows, 4, figsize=(10, 2.0 * rows), squeeze=False)
+    names = ["none"] + [_load(d)["options"].get("nuisance", d.name) for d in dirs[1:]]
+    for r, (name, fr) in enumerate(zip(names, frames)):
+        for c in range(4):
+            ax[r, c].imshow(fr[c])
+            ax[r, c].set_title(f"{name}, frame {c}" + (" (contact)" if c >= s["contact_onset"] else ""), fontsize=8)
+    for k, (name, fr) in enumerate(zip(names[1:], frames[1:])):
+        for c in range(4):
+            d = np.abs(fr[c].astype(np.int16) - frames[0][c].astype(np.int16)).sum(axis=2)
+            ax[len(dirs) + k, c].imshow(np.clip(d * 4, 0, 255), cmap="magma", vmin=0, vmax=255)
+            ax[len(dirs) + k, c].set_title(f"|{name} - none| x4, frame {c}", fontsize=8)
+    for a_ in ax.ravel():
+        a_.axis("off")
+    fig.suptitle(f"{s['id']} ({cat[s['fabric_id']].name}, hairiness {cat[s['fabric_id']].hairiness}); "
+                 f"contact from frame {s['contact_onset']}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out, dpi=80)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,8 @@ def test_nuisance_effects_on_tiny_datasets(tmp_path):
     generate(GenerateConfig(**base), tmp_path / "none", workers=1, previews=False)
     generate(GenerateConfig(**base, nuisance="handheld"), tmp_path / "handheld", workers=1, previews=False)
     r = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path / "none"), str(tmp_path / "handheld"),
-                        "--json", str(tmp_path / "e.json")], capture_output=True, text=True)
+                        "--json", str(tmp_path / "e.json"), "--figure", str(tmp_path / "f.png")],
+                       capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     eff = json.loads((tmp_path / "e.json").read_text())
     none, hand = eff["none"], eff["handheld"]
@@ -25,7 +26,8 @@ def test_nuisance_effects_on_tiny_datasets(tmp_path):
     assert hand["level"] == "handheld" and hand["labels_identical"]
     assert hand["precontact_mean_abs_diff_dn"] > 5.0                  # the start exposure: 0.05-0.6 of settled
     assert hand["precontact_frames"] == 8 and hand["precontact_frames_over_bar"] >= 4
-    assert 0 <= hand["onset_within_1"] <= hand["sequences"] == 4
+    assert 0 <= hand["onset_within_1"] <= hand["sequences"] == 4 == sum(hand["onset_errors"].values())
+    assert (tmp_path / "f.png").stat().st_size > 1000
     generate(GenerateConfig(**{**base, "frames": (9, 9)}), tmp_path / "other", workers=1, previews=False)
     r = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path / "none"), str(tmp_path / "other")],
                        capture_output=True, text=True)
