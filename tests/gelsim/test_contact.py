@@ -194,10 +194,14 @@ def test_sampled_motions_with_tilt_and_tremor(action):
     held = cf.in_contact & (contact_u(cf, m) > m.rise_fraction + 0.05)
     if action != "press":
         # Tremor modulates the force by up to 5 % and fibres bump a sliding pad: median within 5 %,
-        # every frame within 20 % (the crisp 5 % hold is tested without tremor above).
+        # all frames but one within 20 % and none beyond 35 % (the crisp 5 % hold is tested without tremor
+        # above). The one: a stick-slip release spikes the normal force for a frame, 23-30 % in 5 of 24
+        # sampled slip/twist motions (seeds 0-11, 2026-11-28; here twist at seed 11 once its late start
+        # went, docs/nuisance.md section 1); the other 19 motions stayed within 14 %.
         f = cf.normal_force_n[held]
+        dev = np.abs(f - m.peak_force_n) / m.peak_force_n
         assert abs(np.median(f) - m.peak_force_n) < 0.05 * m.peak_force_n
-        assert np.all(np.abs(f - m.peak_force_n) < 0.2 * m.peak_force_n)
+        assert np.sum(dev >= 0.2) <= 1 and np.all(dev < 0.35), dev
     assert np.array_equal(cf.tilt_deg[0], np.array(m.tilt_deg))
     # Undeformed gel height: near the fabric top while pressing (soft contact stand-off < 1 mm).
     assert np.all(np.abs(cf.position_mm[held, 2] - 0.06) < 1.0)
