@@ -64,8 +64,12 @@ demo: $(STAMP)
 	$(VENV)/bin/gelsim generate --preset quick --replace-stale --out $(DEMO_OUT)
 	@echo "demo dataset: $(DEMO_OUT) (manifest: $(DEMO_OUT)/manifest.json, previews: $(DEMO_OUT)/previews/)"
 
+# The default suite, then the wheel test (tests/test_install.py, about 2 min): a wheel of this tree
+# installed into a fresh virtualenv outside the clone makes the quick dataset and runs the README's
+# MuJoCo snippet.
 test: $(STAMP)
 	$(PY) -m pytest -q
+	$(PY) -m pytest -q -m install tests/test_install.py
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m "slow or not slow"

@@ -11,7 +11,7 @@ The full cpu preset's pretraining (16 epochs) costs about 30-60 min per point on
 256 px.
 ``--per-fabric`` sizes the run: a subset of the dataset's sequences (the first k of each fabric and split, a
 manifest beside symlinks to the videos, nothing copied). ``--pretrain-epochs`` defaults to the preset's
-(16; the README's runs used 8): with 4, the backbone stayed at chance (it took off at epochs 2-4 at 128 px
+(16; docs/stam_results.md's runs used 8): with 4, the backbone stayed at chance (it took off at epochs 2-4 at 128 px
 on 1,000 training sequences, at Adam 1e-3; at 64 px and the preset's 3e-4 since, at epochs 4-5).
 Usage::
 

@@ -33,7 +33,9 @@ from scipy.sparse.linalg import LinearOperator, cg, splu, spsolve
 
 from .atomic import atomic_write_npz, atomic_write_text, write_png
 from .errors import GelsimError
-from .optics.lut import coarse_features, normal_xy, shadow_factors
+from .optics.lut import normal_xy
+from .optics.ops.coarse import coarse_features
+from .optics.ops.shadows import shadow_factors
 from .params import dump_toml, to_dict, toml_comments
 from .realism import DISK_RADII, DataPack, ball_cap, ball_depth, ball_indentation_mm, check_geometry, disk_mask
 

@@ -31,7 +31,7 @@ from . import schema
 from .atomic import atomic_write_json, atomic_write_npz
 from .errors import GelsimError
 from .provenance import source_digest
-from .schema import ACTIONS, SPLITS, sha256_of
+from .schema import ACTIONS, SPLITS, load_manifest, sha256_of  # noqa: F401 (load_manifest: for callers)
 
 SPLIT_WEIGHTS = (7.0, 2.0, 1.0)  # the paper's 7:2:1 split, by sequence (the default of --split)
 # Bytes per pixel per frame of each format at 960x720, measured on generated sequences
@@ -265,23 +265,6 @@ def unit_profiles(config: GenerateConfig, profile) -> list:
 
 # ---------------------------------------------------------------- files
 
-def load_manifest(root: str | Path) -> dict:
-    """The manifest of the dataset under ``root``, checked to be this format and version."""
-    root = Path(root)
-    mpath = root / schema.MANIFEST
-    if not mpath.exists():
-        raise GelsimError(f"{root} is not a gelsim dataset (no {schema.MANIFEST}); give a directory made by "
-                          "gelsim generate")
-    try:
-        m = json.loads(mpath.read_text())
-    except json.JSONDecodeError as e:
-        raise GelsimError(f"{mpath} is not valid JSON ({e}); regenerate the dataset") from None
-    problem = schema.manifest_problem(m)
-    if problem:
-        raise GelsimError(f"{root}: {problem}; give a directory made by this version of gelsim generate")
-    return m
-
-
 class StaleOutput(GelsimError):
     """``--out`` holds a gelsim dataset that this code cannot resume: made with other options, library
     versions or gelsim code, so the same seed would give other sequences. :func:`set_aside_stale` moves
@@ -439,34 +422,36 @@ def _unit(k: int):
     return w["units"][k], w["unit_renderers"][k]
 
 
-def _render_frames(renderer, writer, sequence: Callable, out) -> float:
-    """Render the frames of ``sequence(renderer)`` (a :func:`gelsim.sequence.render_sequence` call filling
-    ``out``) into ``writer``; returns the CPU seconds spent encoding. A BatchRenderer (torch backend)
-    renders them ``config.batch`` at a time while a writer thread encodes the previous batch."""
-    from .optics.torch_backend import DEFAULT_BATCH, BatchRenderer, FrameBatcher
-    from .sequence import stage_clock
+@contextlib.contextmanager
+def _frame_sinks(renderer, video: Path, fps: float, seed: int):
+    """(sequence options, sinks) that write one sequence's frames to ``video``: rendered by the sequence
+    with ``renderer`` (a :class:`gelsim.optics.Renderer`), or for the torch backend (a
+    :class:`gelsim.optics.torch_backend.BatchRenderer`) by a :class:`gelsim.sinks.DeviceFrames` sink,
+    ``config.batch`` frames at a time with the sequence's noise (``seed``), while a writer thread encodes
+    the previous batch. Leaving the block by an error discards the video."""
+    from .optics.torch_backend import DEFAULT_BATCH, BatchRenderer
+    from .sequence import SequenceOptions
+    from .sinks import DeviceFrames, VideoSink
+    from .stream import noise_generator
 
-    encode_s = 0.0
-    if isinstance(renderer, BatchRenderer):
-        with FrameBatcher(renderer, _WORKER["config"].batch or DEFAULT_BATCH, writer.write) as frames:
-            for _ in sequence(frames):
-                pass
-            t = stage_clock()
-            frames.close()                                  # the last batch, after the sequence's end
-            out.timings_s["optics"] = out.timings_s.get("optics", 0.0) + stage_clock() - t
-        return frames.sink_seconds
-    for frame in sequence(renderer):
-        te = stage_clock()
-        writer.write(frame)
-        encode_s += stage_clock() - te
-    return encode_s
+    config: GenerateConfig = _WORKER["config"]
+    with contextlib.ExitStack() as stack:
+        writer = stack.enter_context(VideoSink(video, fmt=config.format, fps=fps))
+        if not isinstance(renderer, BatchRenderer):
+            yield SequenceOptions(renderer=renderer, sensor_seed=config.seed), [writer]
+            return
+        device = stack.enter_context(DeviceFrames(renderer, config.batch or DEFAULT_BATCH, noise_generator(seed),
+                                                  [writer]))
+        yield SequenceOptions(sensor_seed=config.seed, outputs={"imprint", "markers"}), [device]
 
 
 def generate_sequence(spec: SequenceSpec) -> dict:
     """Simulate, render, encode and record one sequence (in a worker). Returns its record."""
     from .motion import sample_motion
-    from .sequence import SequenceOutput, render_sequence, stage_clock
-    from .video import VideoWriter, video_path
+    from .sequence import render_sequence
+    from .sinks import drain
+    from .stream import stage_clock
+    from .video import video_path
 
     w = _WORKER
     config: GenerateConfig = w["config"]
@@ -479,23 +464,21 @@ def generate_sequence(spec: SequenceSpec) -> dict:
                            precontact=None if spec.precontact_frames is None
                            else (spec.precontact_frames, spec.precontact_frames),
                            ranges=w["ranges"])
-    out = SequenceOutput({}, {})
     vpath = root / video_path(spec.video_stem(), config.format)
-    with VideoWriter(vpath, fmt=config.format, fps=profile.image.fps_hz) as writer:
-        encode_s = _render_frames(renderer, writer, lambda r: render_sequence(
-            fabric, motion, profile, fidelity, seed=spec.seed, renderer=r, sensor_seed=config.seed, out=out), out)
+    with _frame_sinks(renderer, vpath, profile.image.fps_hz, spec.seed) as (options, sinks):
+        labels, timings = drain(render_sequence(fabric, motion, profile, fidelity, seed=spec.seed, options=options),
+                                sinks)
     te = stage_clock()
     lpath = root / spec.labels_rel()
-    atomic_write_npz(lpath, **out.labels)
-    encode_s += stage_clock() - te
-    in_contact = np.asarray(out.labels["in_contact"], bool)
+    atomic_write_npz(lpath, **labels)
+    timings["encode"] = timings.get("encode", 0.0) + stage_clock() - te
+    in_contact = np.asarray(labels["in_contact"], bool)
     onset = int(np.argmax(in_contact)) if in_contact.any() else -1
-    timings = dict(out.timings_s, encode=encode_s)
     record = dict(id=spec.id, fabric_id=spec.fabric_id, action=spec.action, num_frames=motion.num_frames,
                   contact_onset=onset, precontact_frames=motion.precontact_frames, split=spec.split,
                   video=str(vpath.relative_to(root)), labels=spec.labels_rel(), seed=spec.seed,
                   sha256={"video": sha256_of(vpath), "labels": sha256_of(lpath)},
-                  peak_force_n=float(np.max(out.labels["normal_force_n"])),
+                  peak_force_n=float(np.max(labels["normal_force_n"])),
                   timings_s={k: round(v, 4) for k, v in timings.items()},
                   seconds=round(time.perf_counter() - t0, 3))
     if spec.unit >= 0:

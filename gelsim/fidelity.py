@@ -1,6 +1,6 @@
 """Named fidelity levels: one choice that sets every speed/accuracy knob.
 
-Levels live in ``assets/fidelity.toml``; see that file for what each knob does.
+Levels live in ``gelsim/assets/fidelity.toml``; see that file for what each knob does.
 """
 from __future__ import annotations
 

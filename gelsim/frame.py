@@ -6,7 +6,8 @@ under the sensor and pressed straight in), used by ``gelsim render`` and ``gelsi
 * :func:`press_object`: the object (any :class:`gelsim.scene.TouchedObject`) over the sensor's field,
   pressed with a normal force (N) or to a depth (mm past first touch) -> :class:`gelsim.gel.Imprint`;
 * :func:`render_frame`: that imprint, its markers and the camera -> ``uint8 (H, W, 3)`` RGB frame and a
-  record of what was rendered, with each stage's time in ms;
+  record of what was rendered, with each stage's time in ms (the one-frame function of every caller,
+  :func:`gelsim.stream.make_frame`);
 * :func:`press_report`: the press against Hertz's rigid sphere on an elastic half-space (spheres; on a
   domed gel with the dome's curvature added): contact radius and indentation, mm.
 """
@@ -73,18 +74,10 @@ def render_frame(obj: TouchedObject, profile: str | Path | SensorProfile = "vita
     (indentation mm, force N, contact area mm^2, deepest point mm), the marker count and
     ``stages_ms`` (wall time per stage, ms).
     """
-    from .markers import displace
     from .optics import Renderer
+    from .stream import FrameSetup, StageTimer, Touch, make_frame
 
-    times: dict[str, float] = {}
-    t = time.perf_counter()
-
-    def lap(stage: str) -> None:
-        nonlocal t
-        now = time.perf_counter()
-        times[stage] = round((now - t) * 1e3, 2)
-        t = now
-
+    timer = StageTimer(time.perf_counter)   # wall time: `gelsim render` reports what the user waits for
     prof = _profile(profile)
     fid = get_fidelity(fidelity)
     backend = backend or fid.render_backend
@@ -94,24 +87,23 @@ def render_frame(obj: TouchedObject, profile: str | Path | SensorProfile = "vita
         if v is not None and not (np.isfinite(v) and v >= 0):
             raise GelsimError(f"{name} {v} must be a finite number >= 0")
     obj = as_object(obj)
-    lap("setup")
+    timer.lap("setup")
     info: dict = {"profile": prof.name, "shape_hw": list(prof.shape), "backend": backend, "fidelity": fid.name,
                   "seed": seed, "object": describe(obj)}
     if device is not None:
         info["device"] = device
-    prot = field_heights(obj, prof, seed=seed)
-    lap("object")
-    imprint = press_object(obj, prof, fid, force_n=force_n, depth_mm=depth_mm, protrusion_mm=prot)
-    lap("imprint")
-    markers = displace(prof, fid, imprint, seed=seed) if prof.markers.enabled else None
-    lap("markers")
+    touch = Touch(field_heights(obj, prof, seed=seed), force_n=force_n, depth_mm=depth_mm,
+                  properties=press_properties(obj))
+    timer.lap("object")
     renderer = Renderer(prof, backend, supersample=fid.supersample, seed=seed, device=device)
-    lap("renderer_setup")
+    timer.lap("renderer_setup")
     try:
-        rgb = renderer.render(imprint.depth_mm, markers, seed=seed)
+        imprint, markers, rgb = make_frame(touch, FrameSetup.make(prof, fid, sensor_seed=seed, renderer=renderer),
+                                           seed=seed, timer=timer)
     finally:
         renderer.close()
-    lap("render")
+    # the optics stage is what `gelsim render` has always called "render"
+    times = {("render" if k == "optics" else k): round(v * 1e3, 2) for k, v in timer.take().items()}
     info["imprint"] = {"indentation_mm": imprint.indentation_mm, "normal_force_n": imprint.normal_force_n,
                        "contact_area_mm2": imprint.contact_area_mm2, "bottomed_out": imprint.bottomed_out,
                        "max_depth_mm": float(imprint.depth_mm.max())}

@@ -164,6 +164,35 @@ def _bilinear(field: np.ndarray, cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
             + (field[y1, x0] * (1 - fx) + field[y1, x1] * fx) * fy)
 
 
+def field_window(profile, box: tuple[int, int, int, int]) -> tuple[int, int, int, int, int]:
+    """The coarse grid of the in-plane fields over an imprint whose touched pixels (depth > 0 or contact) have
+    the bounding box ``box`` = (x, y, width, height) px: ``(f, r0, c0, hc, wc)``, cells of f x f px, the grid's
+    corner at pixel (r0, c0), hc x wc cells."""
+    gel = profile.gel
+    mmpp = profile.image.mm_per_px
+    h, w = profile.shape
+    bx, by, bw, bh = box
+    # Integer cells: INTER_AREA then averages whole blocks (its fast path).
+    f = max(1, int(round(gel.thickness_mm / _CELLS_PER_THICKNESS / mmpp)))
+    ell = gel.thickness_mm / (f * mmpp)  # reach of the in-plane fields, cells
+    # The fields fall below 1% of their peak 4 reaches beyond the imprint (exp(-4) for the
+    # screened kernel, far less for the Gaussian): compute over the imprint plus that margin.
+    margin = int(math.ceil(4 * ell)) * f
+    r0 = max(0, (by - margin) // f * f)
+    c0 = max(0, (bx - margin) // f * f)
+    hc = max(2, (min(h, by + bh + margin) - r0) // f)
+    wc = max(2, (min(w, bx + bw + margin) - c0) // f)
+    while r0 + hc * f > h:
+        hc -= 1
+    while c0 + wc * f > w:
+        wc -= 1
+    if hc < 2 or wc < 2:
+        f = 1
+        r0, c0, hc, wc = by, bx, max(2, bh), max(2, bw)
+        r0, c0 = min(r0, h - hc), min(c0, w - wc)
+    return f, r0, c0, hc, wc
+
+
 def displacement_fields(profile, fidelity, imprint, *, shear_mm=(0.0, 0.0), twist_deg: float = 0.0):
     """In-plane displacement on a coarse grid over the imprint, px.
 
@@ -187,26 +216,9 @@ def displacement_fields(profile, fidelity, imprint, *, shear_mm=(0.0, 0.0), twis
     bx, by, bw, bh = cv2.boundingRect(nz.view(np.uint8))
     if bw == 0 or bh == 0:
         return None
-    # Integer cells: INTER_AREA then averages whole blocks (its fast path).
-    f = max(1, int(round(gel.thickness_mm / _CELLS_PER_THICKNESS / mmpp)))
+    f, r0, c0, hc, wc = field_window(profile, (bx, by, bw, bh))
     cell_mm = f * mmpp
     ell = gel.thickness_mm / cell_mm  # reach of the in-plane fields, cells
-    # The fields fall below 1% of their peak 4 reaches beyond the imprint (exp(-4) for the
-    # screened kernel, far less for the Gaussian): compute over the imprint plus that margin.
-    margin = int(math.ceil(4 * ell)) * f
-    r0 = max(0, (by - margin) // f * f)
-    c0 = max(0, (bx - margin) // f * f)
-    hc = max(2, (min(h, by + bh + margin) - r0) // f)
-    wc = max(2, (min(w, bx + bw + margin) - c0) // f)
-    while r0 + hc * f > h:
-        hc -= 1
-    while c0 + wc * f > w:
-        wc -= 1
-    if hc < 2 or wc < 2:
-        f = 1
-        cell_mm, ell = mmpp, gel.thickness_mm / mmpp
-        r0, c0, hc, wc = by, bx, max(2, bh), max(2, bw)
-        r0, c0 = min(r0, h - hc), min(c0, w - wc)
     win = (slice(r0, r0 + hc * f), slice(c0, c0 + wc * f))
     depth_c = cv2.resize(depth[win].astype(np.float32, copy=False), (wc, hc), interpolation=cv2.INTER_AREA)
     mask_c = cv2.resize(mask[win].astype(np.float32), (wc, hc), interpolation=cv2.INTER_AREA)

@@ -5,7 +5,7 @@ needs to move the sensor for one sequence: the action, how many camera frames
 and how many of them come before contact, where and how the hand approaches,
 how hard it presses, and the variability of a sensor held by hand (tilt,
 tremor). :func:`sample_motion` draws one from the ranges in
-``assets/motions.toml`` (:class:`MotionRanges`, each range with its source).
+``gelsim/assets/motions.toml`` (:class:`MotionRanges`, each range with its source).
 
 Frames and coordinates: positions are in mm in the surface (fabric) frame, the
 frame of :class:`gelsim.contact.Surface`: ``x`` along heightmap columns, ``y``
@@ -138,7 +138,7 @@ class TremorRanges(_Ranges):
 
 @dataclass(frozen=True)
 class MotionRanges:
-    """Distributions of the hand-held motions (``assets/motions.toml``)."""
+    """Distributions of the hand-held motions (``gelsim/assets/motions.toml``)."""
     actions: ActionWeights
     timing: TimingRanges
     approach: ApproachRanges
@@ -150,7 +150,7 @@ class MotionRanges:
 
 
 def load_motion_ranges(path: str | Path | None = None) -> MotionRanges:
-    """Load :class:`MotionRanges` from a TOML file (default ``assets/motions.toml``)."""
+    """Load :class:`MotionRanges` from a TOML file (default ``gelsim/assets/motions.toml``)."""
     path = Path(path) if path is not None else MOTIONS_FILE
     return build(MotionRanges, load_toml(path), where=path.name)
 
@@ -195,7 +195,7 @@ class Motion:
             raise GelsimError(f"contact_phase {self.contact_phase} must be in (0, 1)")
         if self.approach_speed_mm_s <= 0 or self.peak_force_n <= 0:
             raise GelsimError("approach_speed_mm_s and peak_force_n must be positive")
-        # The documented ranges of assets/motions.toml bound a twist to half a turn and a slip to
+        # The documented ranges of gelsim/assets/motions.toml bound a twist to half a turn and a slip to
         # a few centimetres; beyond them the fabric patch and the physics are not sized for it.
         if abs(self.twist_deg) > MAX_TWIST_DEG:
             raise GelsimError(f"twist_deg {self.twist_deg} is beyond +-{MAX_TWIST_DEG:g} degrees; give a smaller twist")

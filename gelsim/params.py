@@ -1,6 +1,6 @@
 """Physical parameters from TOML data files into frozen, validated dataclasses.
 
-Every parameter of the simulator lives in a data file under ``assets/`` with its
+Every parameter of the simulator lives in a data file under ``gelsim/assets/`` with its
 unit in the key (``pitch_mm``, ``force_n``, ``sigma_px``). This module turns a
 parsed TOML table into a frozen dataclass:
 
@@ -15,6 +15,7 @@ Errors are :class:`~gelsim.errors.GelsimError` with the file and dotted key.
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import math
 import tomllib
 import types
@@ -26,7 +27,21 @@ from .errors import GelsimError
 
 T = TypeVar("T")
 
-ASSETS_DIR = Path(__file__).resolve().parent.parent / "assets"
+
+def package_dir(package: str, name: str) -> Path:
+    """The data folder ``name`` shipped inside ``package``, found through importlib.resources (so an
+    installed wheel finds it wherever it lives, not only a checkout). Packages are installed unzipped
+    (a wheel's files lie on disk), so the folder is a real directory the loaders can glob."""
+    folder = importlib.resources.files(package) / name
+    path = Path(str(folder))
+    if not path.is_dir():
+        raise GelsimError(f"{package}'s data folder {name}/ is missing from {path.parent}; reinstall gelsim "
+                          "(make install, or pip install the wheel)")
+    return path
+
+
+#: gelsim/assets: every physical parameter's data file (fabrics, sensors, fidelity levels, motions, tables).
+ASSETS_DIR = package_dir("gelsim", "assets")
 
 
 def param(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: float | None = None,

@@ -1,5 +1,6 @@
-"""Preview images of a generated dataset: a frame strip per action, a contact sheet of the fabrics and
-a sheet of press, slip and twist frames across families (:func:`action_sheet`)."""
+"""Preview images of a generated dataset: a frame strip per action, a contact sheet of the fabrics, the
+first look (:mod:`gelsim.firstlook`) and a sheet of press, slip and twist frames across families
+(:func:`action_sheet`)."""
 from __future__ import annotations
 
 import math
@@ -9,7 +10,9 @@ import cv2
 import numpy as np
 
 from .atomic import write_png
+from .crop import STAM_CPU_CROP, crop_box_px
 from .errors import GelsimError
+from .firstlook import write_first_look
 from .schema import ACTIONS, PREVIEWS_DIR
 from .video import read_video
 
@@ -87,6 +90,7 @@ def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Pa
             p = out_dir / f"{sheet}.png"
             write_png(p, _grid(parts, min(10, len(parts))))
             written.append(p)
+    written += write_first_look(out_dir, manifest)   # the fabrics at 960x720 and what the contact changed
     return written
 
 
@@ -148,8 +152,6 @@ def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int 
     ``contact_bbox_px``, ``contact_centroid_px``, when present) in red and stam's centred crop
     (``crop``: fraction of the shorter side; default stam's cpu preset) in yellow. ``tile_px``: tile
     width, px (default: the frames' own, at most :data:`ACTION_TILE_MAX_PX`)."""
-    from .stats import STAM_CPU_CROP, crop_box_px
-
     root = Path(root)
     crop = STAM_CPU_CROP if crop is None else crop
     picks = pick_across_families(manifest, families)

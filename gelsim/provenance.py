@@ -16,7 +16,7 @@ import numpy as np
 
 @functools.lru_cache(maxsize=1)
 def source_digest() -> str:
-    """SHA-256 (hex) of every gelsim module but those that only present results (gelsim/bench.py,
+    """SHA-256 (hex) of every gelsim module but those that only present results (gelsim/bench/,
     gelsim/cli/), every asset, and the numeric libraries' versions. About 20 ms, once per process."""
     import mujoco
 
@@ -25,7 +25,7 @@ def source_digest() -> str:
     h = hashlib.sha256()
     pkg = Path(__file__).resolve().parent
     root = pkg.parent
-    files = [f for f in sorted(pkg.rglob("*.py")) if f.name != "bench.py" and "cli" not in f.relative_to(pkg).parts]
+    files = [f for f in sorted(pkg.rglob("*.py")) if not {"bench", "cli"} & set(f.relative_to(pkg).parts)]
     files += sorted(f for f in Path(ASSETS_DIR).rglob("*") if f.is_file())
     for f in files:
         h.update(str(f.relative_to(root) if root in f.parents else f.name).encode())

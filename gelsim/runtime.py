@@ -6,7 +6,7 @@ Three settings, applied by :func:`configure_worker`:
 * **BLAS on one thread.** numpy and OpenCV each bundle an OpenBLAS whose threads, once started by a
   mid-sized product (a 240x55 by 55x280 one is enough), spin between calls: measured, a worker
   whose frame ran two such products used 76 ms of CPU for 37 ms of its own work. Both are set to
-  one thread through OpenBLAS's ``*_set_num_threads`` (as threadpoolctl does; no new dependency).
+  one thread through threadpoolctl.
 * **Keep freed arrays on the heap (glibc).** A frame allocates dozens of short-lived arrays of a
   few MB. glibc serves allocations above its mmap threshold with fresh ``mmap`` pages, which the
   kernel zeroes and faults in on first touch: measured on a 960x720 fabric press, that overhead
@@ -21,6 +21,8 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import sys
+
+from .errors import GelsimError
 
 # glibc's mallopt parameters (malloc.h): M_TRIM_THRESHOLD = -1, M_MMAP_THRESHOLD = -3.
 _M_TRIM_THRESHOLD = -1
@@ -50,33 +52,53 @@ def keep_heap() -> bool:
         return False
 
 
-# OpenBLAS builds name their thread setter differently (64-bit-index builds of scipy-openblas add a
-# prefix and a suffix).
-_BLAS_SETTERS = ("openblas_set_num_threads", "scipy_openblas_set_num_threads64_", "openblas_set_num_threads64_",
-                 "scipy_openblas_set_num_threads")
-
-
 def single_thread_blas() -> int:
-    """Set every OpenBLAS loaded in this process to one thread; returns how many were set (0 where
-    none is loaded or the platform has no /proc/self/maps)."""
-    try:
-        with open("/proc/self/maps") as fh:
-            paths = {line.split()[-1] for line in fh if "openblas" in line.lower() and "/" in line}
-    except OSError:
-        return 0
-    done = 0
-    for path in sorted(paths):
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for name in _BLAS_SETTERS:
-            fn = getattr(lib, name, None)
-            if fn is not None:
-                fn(ctypes.c_int(1))
-                done += 1
-                break
-    return done
+    """Set every BLAS loaded in this process to one thread, for good; returns how many were set."""
+    from threadpoolctl import threadpool_limits
+
+    return len(threadpool_limits(limits=1, user_api="blas").get_original_num_threads())
+
+
+class ThreadLimit:
+    """A block run on at most ``threads`` threads of OpenCV and of every BLAS/OpenMP pool threadpoolctl
+    finds, the caller's own settings given back after it (``None``: nothing changed).
+
+    Why (issue 42): numpy's OpenBLAS starts a second thread on a mid-sized product and it spins between
+    calls; a GelSight sensor at 320x240 used 14.5 ms of CPU for 6.6 ms of work, and twice the wall time
+    with two sensors side by side. The limit is process-wide while the block runs (OpenCV's and
+    OpenBLAS's settings are global), so sensors rendered from several Python threads at once share it.
+    Entering costs about 25 us (threadpoolctl's controller is built once, at the first use, when the
+    libraries a render needs are loaded)."""
+
+    def __init__(self, threads: int | None):
+        if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+            raise GelsimError(f"threads {threads!r} is not a thread count; give an integer >= 1, or None to leave "
+                              "numpy's and OpenCV's threading as the process has it")
+        self.threads = threads
+        self._controller = None
+        self._saved: list = []
+
+    def __enter__(self) -> "ThreadLimit":
+        if self.threads is None:
+            return self
+        import cv2
+        from threadpoolctl import ThreadpoolController
+
+        if self._controller is None:
+            self._controller = ThreadpoolController()
+        limit = self._controller.limit(limits=self.threads)
+        self._saved.append((cv2.getNumThreads(), limit))
+        cv2.setNumThreads(self.threads)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.threads is None:
+            return
+        import cv2
+
+        cv_threads, limit = self._saved.pop()
+        limit.restore_original_limits()
+        cv2.setNumThreads(cv_threads)
 
 
 def configure_worker() -> None:

@@ -199,7 +199,7 @@ class Mesh(_Rigid):
         return f"mesh {Path(self.path).name}"
 
     def heights(self, x0_mm, y0_mm, width_px, height_px, mm_per_px, *, seed=0, rotation_deg=0.0):
-        from .indenters import load_mesh, mesh_heights
+        from .meshes import load_mesh, mesh_heights
 
         xs = x0_mm + np.arange(width_px) * mm_per_px - self.center_mm[0]
         ys = y0_mm + np.arange(height_px) * mm_per_px - self.center_mm[1]

@@ -3,7 +3,7 @@
 Its writers (:mod:`gelsim.dataset`, ``stam.synthetic``), its verifier (:func:`gelsim.dataset.verify`)
 and its readers (:mod:`gelsim.dataset`, :mod:`gelsim.stats`, ``stam.data``) take the format's name and
 version, the action and split names, the paths inside a dataset, the manifest's fields and the label
-keys from here. The README's "Layout" section documents the same; ``tests/gelsim/test_schema.py``
+keys from here. docs/dataset.md's "Layout" section documents the same; ``tests/gelsim/test_schema.py``
 checks that the two agree.
 
 Layout of a dataset directory ``DIR``::
@@ -20,11 +20,14 @@ meaning) needs a new version; a new optional field or key does not.
 from __future__ import annotations
 
 import hashlib
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
+
+from .errors import GelsimError
 
 FORMAT = "gelsim-dataset"
 FORMAT_VERSION = 1
@@ -127,6 +130,50 @@ def manifest_problem(m: Any) -> str | None:
     if m.get("format_version") != FORMAT_VERSION:
         return f"format_version {m.get('format_version')!r}, this reader knows {FORMAT_VERSION}"
     return None
+
+
+def load_manifest(root: str | Path, *, complete: bool = False, error: type[GelsimError] = GelsimError) -> dict:
+    """The manifest of the dataset under ``root``, checked to be this format and version; the one loader
+    of every reader (gelsim's commands, ``stam``).
+
+    ``complete``: also require a finished dataset whose every sequence a reader of frames can use (its
+    READ_FIELDS, a fabric the manifest lists, a known split), as ``stam`` needs. ``error``: the
+    GelsimError subclass raised, one line naming the problem and the fix (``stam`` raises its own).
+    """
+    root = Path(root)
+    path = root / MANIFEST
+    if not root.is_dir():
+        raise error(f"dataset directory {root} does not exist; give the --out directory of gelsim generate")
+    if not path.is_file():
+        raise error(f"{root} is not a gelsim dataset (no {MANIFEST}); give a directory made by gelsim generate")
+    try:
+        m = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise error(f"cannot read {path} ({e}); regenerate the dataset") from None
+    problem = manifest_problem(m)
+    if problem:
+        raise error(f"{path}: {problem}; give a directory made by this version of gelsim generate")
+    if complete:
+        _check_complete(m, root, path, error)
+    return m
+
+
+def _check_complete(m: dict, root: Path, path: Path, error: type[GelsimError]) -> None:
+    """:func:`load_manifest`'s checks of a finished dataset (``complete=True``)."""
+    if m.get("complete") is not True:
+        raise error(f"dataset {root} is incomplete (complete: false); rerun gelsim generate to finish it")
+    for key in ("fabrics", "sequences"):
+        if not isinstance(m.get(key), list) or not m[key]:
+            raise error(f"{path} has no {key}; regenerate the dataset")
+    ids = {f["id"] for f in m["fabrics"]}
+    for s in m["sequences"]:
+        for key in READ_FIELDS:
+            if key not in s:
+                raise error(f"sequence {s.get('id', '?')} in {path} lacks {key!r}; regenerate the dataset")
+        if s["fabric_id"] not in ids:
+            raise error(f"sequence {s['id']} names unknown fabric {s['fabric_id']}; regenerate the dataset")
+        if s["split"] not in SPLITS:
+            raise error(f"sequence {s['id']} has split {s['split']!r}, expected one of {SPLITS}")
 
 
 # ---------------------------------------------------------------- labels

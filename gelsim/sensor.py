@@ -1,6 +1,6 @@
 """Sensor profiles: every physical parameter of one GelSight sensor.
 
-A profile is a TOML file under ``assets/sensors/`` (or any path), one commented
+A profile is a TOML file under ``gelsim/assets/sensors/`` (or any path), one commented
 file per sensor in the spirit of TACTO's ``config_digit.yml``. Units are in the
 keys. It loads into the frozen :class:`SensorProfile`; sections:
 
@@ -225,7 +225,7 @@ class SensorProfile:
 
 
 def list_profiles() -> list[str]:
-    """Names of the profiles shipped in ``assets/sensors/``."""
+    """Names of the profiles shipped in ``gelsim/assets/sensors/``."""
     return sorted(p.stem for p in SENSORS_DIR.glob("*.toml"))
 
 

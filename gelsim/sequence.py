@@ -1,10 +1,13 @@
 """One tactile sequence end to end: touched object -> contact -> gel -> optics.
 
-:func:`render_sequence` strings the stages together for one (object, motion)
-pair and yields frames one at a time (constant memory), then returns the
-per-frame labels.
+:func:`render_sequence` strings the stages together for one (object, motion) pair: the object's
+heights and the contact simulation once, then per frame the one-frame function of
+:mod:`gelsim.stream` (press -> markers -> render). It yields one :class:`gelsim.stream.FrameRecord` per
+frame (constant memory) to whoever consumes them (:mod:`gelsim.sinks`); the sequence's labels are
+assembled from the records' (:func:`gelsim.stream.sequence_labels`). Its options (renderer, sensor
+seed, shortcuts, outputs, reused parts) are one :class:`SequenceOptions`.
 
-Shortcuts (``shortcuts=True``, the default) skip work a frame does not need; each
+Shortcuts (``SequenceOptions(shortcuts=True)``, the default) skip work a frame does not need; each
 gives the full computation's result within the tolerance stated here, checked by
 ``tests/gelsim/test_shortcuts.py``, and ``gelsim bench`` reports what they save:
 
@@ -31,9 +34,7 @@ from __future__ import annotations
 
 import functools
 import math
-import time
-from collections import defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Collection, Iterator
 
 import cv2
@@ -42,13 +43,14 @@ import numpy as np
 from .contact import ContactFrames, Surface, simulate
 from .errors import GelsimError
 from .fidelity import Fidelity
-from .gel import press
+from .gel import Imprint
 from .gel.twoscale import crown_envelope, texture_scale_mm
-from .markers import displace, marker_grid, rest_markers
+from .markers import Markers
 from .motion import Motion
 from .optics import Renderer
 from .scene import PHYSICS_MM_PER_PX, HeightPatch, TouchedObject, as_object, physics_surface, press_properties, travel_patch  # noqa: F401
 from .sensor import SensorProfile
+from .stream import FrameRecord, FrameSetup, StageTimer, Touch, make_frame, noise_generator
 
 # Shear and twist terms that move no marker by more than this are skipped, px. A marker edge
 # moving by 0.005 px changes its anti-aliased coverage by 0.5% of a pixel: at most about
@@ -58,29 +60,35 @@ NEGLIGIBLE_PX = 0.005
 OUTPUTS = frozenset({"frames", "imprint", "markers"})
 
 
-# Stage clock: the thread's CPU time. A generation worker is one thread on one core, so this is its
-# per-core cost whatever else the machine runs (wall time would count other processes' turns).
-stage_clock = time.thread_time
+@dataclass(frozen=True)
+class SequenceOptions:
+    """How :func:`render_sequence` runs: what it computes, and the parts of the sequence already computed.
 
+    ``renderer``: the sensor's :class:`gelsim.optics.Renderer` (default: one for the fidelity level, made
+    per call). ``sensor_seed`` fixes what belongs to the physical sensor and stays the same across a
+    dataset (background illumination field, printed marker jitter). ``shortcuts``: skip work frames do
+    not need (see the module docstring); False computes everything on every frame. ``outputs``: any of
+    ``"frames"``, ``"imprint"`` (labels ``indentation_mm``, ``contact_area_mm2``, ``contact_centroid_px``,
+    ``contact_bbox_px``) and ``"markers"`` (``markers_xy_px``, ``markers_rest_px``); the contact labels are
+    always computed; without ``"frames"`` the records carry no frame (a sink may render them:
+    :class:`gelsim.sinks.DeviceFrames`). ``contact``: a finished contact simulation of this motion to reuse
+    (no physics run; e.g. to compare fidelity levels on the same contact). ``surface`` and ``patch``: the
+    object's physics surface and image-resolution heights when already built (default:
+    :func:`gelsim.scene.physics_surface` and :func:`gelsim.scene.travel_patch`).
+    """
+    renderer: Renderer | None = None
+    sensor_seed: int = 0
+    shortcuts: bool = True
+    outputs: Collection[str] = OUTPUTS
+    contact: ContactFrames | None = None
+    surface: Surface | None = None
+    patch: HeightPatch | None = None
 
-@dataclass
-class StageTimer:
-    """Accumulates CPU time per pipeline stage (:data:`stage_clock`), in seconds."""
-    seconds: dict[str, float] = field(default_factory=lambda: defaultdict(float))
-
-    def add(self, stage: str, t0: float) -> float:
-        t1 = stage_clock()
-        self.seconds[stage] += t1 - t0
-        return t1
-
-
-# The image-resolution heights of a sequence's object (kept under its old name for callers).
-
-
-@dataclass
-class SequenceOutput:
-    labels: dict[str, np.ndarray]
-    timings_s: dict[str, float]
+    def __post_init__(self):
+        outputs = frozenset(self.outputs)
+        if not outputs <= OUTPUTS:
+            raise GelsimError(f"unknown outputs {sorted(outputs - OUTPUTS)}; choose from {sorted(OUTPUTS)}")
+        object.__setattr__(self, "outputs", outputs)
 
 
 def _negligible_px(shear_mm, twist_deg: float, profile: SensorProfile) -> tuple[bool, bool]:
@@ -123,118 +131,92 @@ def crown_envelope_patch(patch: HeightPatch | None, obj: TouchedObject, profile:
 
 
 def render_sequence(obj: TouchedObject, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *,
-                    seed: int, renderer: Renderer | None = None, sensor_seed: int = 0,
-                    out: SequenceOutput | None = None, shortcuts: bool = True,
-                    outputs: Collection[str] = OUTPUTS, contact: ContactFrames | None = None,
-                    surface: Surface | None = None, patch: HeightPatch | None = None) -> Iterator[np.ndarray | None]:
-    """Yield the ``uint8 (H, W, 3)`` frames of one sequence; fills ``out`` with labels and timings.
+                    seed: int, options: SequenceOptions = SequenceOptions()) -> Iterator[FrameRecord]:
+    """Yield one :class:`gelsim.stream.FrameRecord` per frame of the sequence (constant memory): its pose and
+    forces, imprint, markers, labels and, when rendered, its ``uint8 (H, W, 3)`` frame, each made by
+    :func:`gelsim.stream.make_frame`. The sequence's labels are :func:`gelsim.stream.sequence_labels` of the
+    records' (:func:`gelsim.sinks.drain` collects them), its stage times the sum of theirs.
 
     ``obj``: what the sensor touches (a :class:`gelsim.scene.TouchedObject`, or a catalog Fabric).
-    ``seed`` drives everything random in this sequence (the object's irregularity phase, camera
-    noise); ``sensor_seed`` fixes what belongs to the physical sensor and stays the same
-    across a dataset (background illumination field, printed marker jitter).
-
-    ``shortcuts``: skip work frames do not need (see the module docstring); False computes
-    everything on every frame. ``outputs``: any of ``"frames"``, ``"imprint"`` (labels
-    ``indentation_mm``, ``contact_area_mm2``) and ``"markers"`` (``markers_xy_px``,
-    ``markers_rest_px``); without ``"frames"`` the generator yields None per frame. The
-    contact labels are always computed. ``contact``: a finished contact simulation of this
-    motion to reuse (no physics run; e.g. to compare fidelity levels on the same contact).
-    ``surface`` and ``patch``: the object's physics surface and image-resolution heights when
-    already built (default: :func:`gelsim.scene.physics_surface` and :func:`gelsim.scene.travel_patch`).
+    ``seed`` drives everything random in this sequence (the object's irregularity phase, the camera
+    noise: :func:`gelsim.stream.noise_generator`). ``options``: see :class:`SequenceOptions`.
     """
-    outputs = frozenset(outputs)
-    if not outputs <= OUTPUTS:
-        raise GelsimError(f"unknown outputs {sorted(outputs - OUTPUTS)}; choose from {sorted(OUTPUTS)}")
+    o = options
     obj = as_object(obj)
+    contact = o.contact
     if contact is not None and len(contact.normal_force_n) != motion.num_frames:
         raise GelsimError(f"contact has {len(contact.normal_force_n)} frames, the motion {motion.num_frames}; "
                           "simulate this motion")
-    want_frames = "frames" in outputs
-    want_markers = want_frames or "markers" in outputs
-    want_imprint = want_markers or "imprint" in outputs
+    want_frames = "frames" in o.outputs
+    want_markers = want_frames or "markers" in o.outputs
+    want_imprint = want_markers or "imprint" in o.outputs
     timer = StageTimer()
-    t = stage_clock()
+    renderer = None
     if want_frames:
-        renderer = renderer or Renderer(profile, fidelity.render_backend, supersample=fidelity.supersample,
-                                        seed=sensor_seed)
+        renderer = o.renderer or Renderer(profile, fidelity.render_backend, supersample=fidelity.supersample,
+                                          seed=o.sensor_seed)
     if contact is None:
-        if surface is None:
-            surface = physics_surface(obj, motion, profile, seed=seed)
-        t = timer.add("fabric", t)
+        surface = o.surface if o.surface is not None else physics_surface(obj, motion, profile, seed=seed)
+        timer.lap("fabric")
         contact = simulate(motion, surface, profile, fidelity)
-        t = timer.add("physics", t)
+        timer.lap("physics")
     props = press_properties(obj)
     # The image-resolution patch is the costliest fabric step: built only if some frame presses.
     touches = bool(np.any(contact.in_contact & (contact.normal_force_n > 0)))
-    if patch is None and want_imprint and (touches or not shortcuts):
+    patch = o.patch
+    if patch is None and want_imprint and (touches or not o.shortcuts):
         patch = travel_patch(obj, motion, profile, profile.image.mm_per_px, seed=seed,
                              poses=(contact.position_mm, contact.yaw_deg))
     # The crown envelope of the object's texture is a property of the object, not of the pose: taken once
     # on the patch and seen through each frame's pose like the heights (press(envelope_mm=)).
     envelope = crown_envelope_patch(patch, obj, profile, fidelity)
-    t = timer.add("fabric", t)
+    setup = FrameSetup.make(profile, fidelity, sensor_seed=o.sensor_seed, markers=want_markers, renderer=renderer)
+    timer.lap("fabric")
 
-    markers_on = profile.markers.enabled and want_markers
-    rest = marker_grid(profile, seed=sensor_seed) if markers_on else None
-    flat_markers = rest_markers(profile, seed=sensor_seed) if markers_on else None
-    rng = np.random.default_rng(seed)
-    T = motion.num_frames
-    n_markers = 0 if rest is None else len(rest)
-    markers_xy = np.zeros((T, n_markers, 2), np.float32)
-    indentation = np.zeros(T, np.float32)
-    area = np.zeros(T, np.float32)
-    centroid = np.full((T, 2), np.nan, np.float32)   # NaN: no contact in that frame
-    bbox = np.full((T, 4), np.nan, np.float32)
-    window = "touched" if shortcuts else "full"
+    state = contact.to_dict()
+    rng = noise_generator(seed)
+    window = "touched" if o.shortcuts else "full"
     prev = None  # the previous frame's imprint warm-starts the next (same result, fewer iterations)
-    for i in range(T):
+    for i in range(motion.num_frames):
         force = float(contact.normal_force_n[i])
-        imprint = None
         touching = bool(contact.in_contact[i]) and force > 0.0
-        if want_imprint and (touching or not shortcuts):
+        touch = None
+        if want_imprint and (touching or not o.shortcuts):
             pose = (profile.shape, profile.image.mm_per_px, contact.position_mm[i, 0], contact.position_mm[i, 1],
                     contact.yaw_deg[i], tuple(contact.tilt_deg[i]))
-            prot = patch.sample(*pose)
-            env = None if envelope is None else functools.partial(envelope.sample, *pose)
-            t = timer.add("fabric", t)
-            imprint = press(prot, profile, fidelity, force_n=force if touching else 0.0, window=window, warm=prev,
-                            envelope_mm=env, **props)
+            shear, twist = tuple(float(v) for v in contact.shear_mm[i]), float(contact.twist_deg[i])
+            if o.shortcuts:
+                skip_shear, skip_twist = _negligible_px(shear, twist, profile)
+                shear = (0.0, 0.0) if skip_shear else shear
+                twist = 0.0 if skip_twist else twist
+            touch = Touch(patch.sample(*pose), force_n=force if touching else 0.0, shear_mm=shear, twist_deg=twist,
+                          warm=prev, window=window,
+                          envelope_mm=None if envelope is None else functools.partial(envelope.sample, *pose),
+                          properties=props)
+            timer.lap("fabric")
+        imprint, markers, frame = make_frame(touch, setup, seed=rng, timer=timer)
+        if touch is not None:
             prev = imprint if touching else None
-            indentation[i] = imprint.indentation_mm
-            area[i] = imprint.contact_area_mm2
-            centroid[i], bbox[i] = contact_location(imprint.contact_mask)
-            t = timer.add("imprint", t)
-        if rest is not None:
-            if imprint is None:
-                mk = flat_markers
-            else:
-                shear, twist = tuple(float(v) for v in contact.shear_mm[i]), float(contact.twist_deg[i])
-                if shortcuts:
-                    skip_shear, skip_twist = _negligible_px(shear, twist, profile)
-                    shear = (0.0, 0.0) if skip_shear else shear
-                    twist = 0.0 if skip_twist else twist
-                mk = displace(profile, fidelity, imprint, shear_mm=shear, twist_deg=twist, rest=rest)
-            markers_xy[i] = mk.xy_px
-            t = timer.add("markers", t)
-        else:
-            mk = None
-        if want_frames:
-            depth = None if imprint is None else imprint.depth_mm
-            frame = renderer.render(depth, mk, seed=rng)
-            t = timer.add("optics", t)
-        else:
-            frame = None
-        yield frame
-        t = stage_clock()  # time spent by the consumer (encoding) is not ours
+        labels = _frame_labels({k: v[i] for k, v in state.items()}, imprint, markers, want_imprint, want_markers)
+        yield FrameRecord(i, touch, imprint, markers, frame, labels, timer.take())
+        timer.restart()  # time spent by the consumer (encoding) is not ours
 
-    labels = contact.to_dict()
-    if want_imprint:
-        labels.update(indentation_mm=indentation, contact_area_mm2=area, contact_centroid_px=centroid,
-                      contact_bbox_px=bbox)
-    if want_markers:
-        labels.update(markers_xy_px=markers_xy,
-                      markers_rest_px=(np.zeros((0, 2), np.float32) if rest is None else rest.astype(np.float32)))
-    if out is not None:
-        out.labels = labels
-        out.timings_s = dict(timer.seconds)
+
+def _frame_labels(state: dict, imprint: Imprint | None, markers: Markers | None, imprint_labels: bool,
+                  marker_labels: bool) -> dict[str, np.ndarray]:
+    """One frame's labels (:data:`gelsim.schema.LABELS` order and dtypes): its pose and forces (``state``, the
+    contact simulation's row), then the imprint's (zero and NaN without one) and the markers' if asked."""
+    labels = dict(state)
+    if imprint_labels:
+        if imprint is None:
+            depth, area, centroid, bbox = 0.0, 0.0, np.full(2, np.nan), np.full(4, np.nan)
+        else:
+            depth, area = imprint.indentation_mm, imprint.contact_area_mm2
+            centroid, bbox = contact_location(imprint.contact_mask)
+        labels.update(indentation_mm=np.float32(depth), contact_area_mm2=np.float32(area),
+                      contact_centroid_px=centroid.astype(np.float32), contact_bbox_px=bbox.astype(np.float32))
+    if marker_labels:
+        none = np.zeros((0, 2), np.float32)
+        labels.update(markers_xy_px=none if markers is None else markers.xy_px.astype(np.float32, copy=False),
+                      markers_rest_px=none if markers is None else markers.rest_px.astype(np.float32, copy=False))
+    return labels

@@ -26,15 +26,13 @@ from typing import Callable
 
 import numpy as np
 
+from .crop import STAM_CPU_CROP, check_crop, crop_box_px  # noqa: F401 (check_crop: for callers)
 from .errors import GelsimError
-from .schema import ACTIONS, MANIFEST, PREVIEWS_DIR
+from .schema import ACTIONS, MANIFEST, PREVIEWS_DIR, load_manifest
+
 # The frame of a sequence that shows each action best.
 KEY_FRAME = {"press": "peak_force", "slip": "peak_shear", "twist": "peak_twist"}
 PERCENTILES = (5.0, 50.0, 95.0)
-# Side of the centred square that `stam experiment --preset cpu` keeps from each frame, as a fraction
-# of the frame's shorter side: stam/configs/cpu.toml [train] crop (tests/gelsim/test_stats.py checks
-# that the two agree; gelsim does not import stam, which sits downstream of it).
-STAM_CPU_CROP = 0.5
 # A similarity fit has 4 unknowns (2 translation, rotation, scale): 3 markers (6 equations) are the
 # fewest that leave a residual. Contact regions with fewer markers are widened to the nearest 3.
 MIN_REGION_MARKERS = 3
@@ -173,23 +171,6 @@ def label_agreement(labels: dict, frame: int, mm_per_px: float) -> dict:
 
 
 # ---------------------------------------------------------------- per sequence
-
-def check_crop(fraction: float) -> float:
-    """``fraction`` if it is a valid crop (0 < fraction <= 1), else a GelsimError."""
-    if not (math.isfinite(fraction) and 0 < fraction <= 1):
-        raise GelsimError(f"crop fraction {fraction} is out of range; give the kept fraction of the shorter side, "
-                          "0-1 (stam's cpu preset: 0.5)")
-    return fraction
-
-
-def crop_box_px(width_px: int, height_px: int, fraction: float = STAM_CPU_CROP) -> tuple[float, float, float, float]:
-    """Edges (x0, y0, x1, y1), px, of the centred square stam keeps (``stam.data.centre_square``):
-    side ``round(fraction * min(W, H))``, pixel centres at integers."""
-    check_crop(fraction)
-    side = max(1, round(fraction * min(height_px, width_px)))
-    y0, x0 = (height_px - side) // 2, (width_px - side) // 2
-    return x0 - 0.5, y0 - 0.5, x0 + side - 0.5, y0 + side - 0.5
-
 
 def _in_box(xy: np.ndarray, box) -> np.ndarray:
     x0, y0, x1, y1 = box
@@ -359,7 +340,6 @@ def dataset_stats(root: str | Path, *, crop: float = STAM_CPU_CROP, manifest: di
     mean; the frame each is taken at; the label-vs-image agreement; crop and pad geometry), ``rows``
     one :func:`sequence_stats` dict per generated sequence (with ``id``, ``fabric_id``, ``action``).
     """
-    from .dataset import load_manifest
     from .sensor import load_profile
 
     root = Path(root)
@@ -614,7 +594,6 @@ def write_stats(root: str | Path, out_dir: str | Path | None = None, *, crop: fl
     which decodes one video per tile). Every file is written atomically. ``manifest``: as in
     :func:`dataset_stats`. Returns (summary, paths written)."""
     from .atomic import atomic_write_bytes, atomic_write_json, write_png
-    from .dataset import load_manifest
 
     root = Path(root)
     out = Path(out_dir) if out_dir is not None else root / PREVIEWS_DIR

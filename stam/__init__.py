@@ -6,4 +6,4 @@ datasets), ``config`` (presets into validated dataclasses), ``train``, ``evaluat
 ``explain`` (Grad-CAM and temporal attention maps) and ``cli`` (the ``stam`` command).
 Bad input raises :class:`stam.errors.StamError`, a GelsimError (one line, exit 2 on the CLI).
 """
-__version__ = "0.1.0"
+from gelsim import __version__  # noqa: E402,F401  (one version for the distribution)

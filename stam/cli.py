@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from gelsim.cli import HelpFormatter, dispatch, print_json, print_result
+from gelsim.cli import ArgumentParser, HelpFormatter, dispatch, print_json, print_result
 
 from . import __version__
 
@@ -78,16 +78,18 @@ def _pretrain(args) -> int:
 
 
 def _train(args) -> int:
+    from .ranks import one_line_per_rank
     from .train import run_train
 
     overrides = {"model": args.model, "frames": args.frames, "start": args.start, "epochs": args.epochs,
                  "seed": args.seed}
     if args.quiet or args.json:
         overrides["progress"] = False
-    res = run_train(args.data, args.out, preset=args.preset, overrides=overrides, sets=args.set,
-                    pretrained=args.pretrained, resume=args.resume, dry_run=args.dry_run,
-                    log=None if args.json or args.quiet else print,
-                    note=None if args.quiet else (lambda m: print(m, file=sys.stderr)))
+    with one_line_per_rank():   # under torchrun: every rank's stop is one line
+        res = run_train(args.data, args.out, preset=args.preset, overrides=overrides, sets=args.set,
+                        pretrained=args.pretrained, resume=args.resume, dry_run=args.dry_run,
+                        log=None if args.json or args.quiet else print,
+                        note=None if args.quiet else (lambda m: print(m, file=sys.stderr)))
     if res.get("rank", 0):
         return 0  # under torchrun, rank 0 reports for the job
     if args.json:
@@ -203,7 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .data import DEFAULT_ONSET_THRESHOLD
     from .models import MODEL_NAMES
 
-    p = argparse.ArgumentParser(prog="stam", formatter_class=HelpFormatter,
+    p = ArgumentParser(prog="stam", formatter_class=HelpFormatter,
                                 description="STAM tactile texture recognition (Cao et al., IROS 2020) on gelsim datasets.")
     p.add_argument("--version", action="version", version=f"stam {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")

@@ -20,12 +20,12 @@ from pathlib import Path
 from typing import Literal
 
 from gelsim.errors import GelsimError
-from gelsim.params import build, load_toml, param
+from gelsim.params import build, load_toml, package_dir, param
 
 from .data import DEFAULT_ONSET_THRESHOLD
 from .errors import StamError
 
-CONFIG_DIR = Path(__file__).parent / "configs"
+CONFIG_DIR = package_dir("stam", "configs")
 # Without a GPU, `stam train` with no --preset uses the cpu preset: the library defaults (full
 # AlexNet from scratch at 224 px) take about 2 minutes an epoch on 2 cores and stay at chance for
 # the first epochs; with one, the paper preset (the paper's setting).
@@ -135,16 +135,26 @@ class Preset:
     sweep: SweepConfig = SweepConfig()
 
     def describe(self) -> str:
-        """One line: what a run of this preset trains."""
-        t = self.train
-        what = f"AlexNet width {t.width:g} at {t.image_size} px" + (
-            f" on the central {t.crop:g} of each frame" if t.crop < 1 else "")
-        if self.pretrain is not None:
-            start = f"backbone pretrained on single frames for {self.pretrain.epochs} epochs"
-        else:
-            start = "backbone from random weights"
-        how = "then frozen, attention and head" if t.freeze_backbone else "then the whole model"
-        return f"{what}, {start}, {how} trained for {t.epochs} epochs ({t.optimizer}, lr {t.lr:g})"
+        """One line: what a run of this preset trains (:func:`describe_run` of its sections)."""
+        return describe_run(self.train, self.pretrain)
+
+
+def describe_run(t: TrainConfig, pretrain: PretrainConfig | None) -> str:
+    """One line: what a run trains as resolved (preset, options and ``--set`` applied): the model and its
+    windows, its input, where the backbone starts (``pretrain``: the [pretrain] step the run takes; else
+    ``t.pretrained``'s file, or random weights), what is trained and for how long."""
+    window = "from the first contact frame" if t.start == "contact" else "from frame 0"
+    what = (f"{t.model}, windows of {t.frames} frames {window}, AlexNet width {t.width:g} at {t.image_size} px"
+            + (f" on the central {t.crop:g} of each frame" if t.crop < 1 else ""))
+    if pretrain is not None:
+        start = f"backbone pretrained on single frames for {pretrain.epochs} epoch{'s' * (pretrain.epochs != 1)}"
+    elif t.pretrained:
+        start = f"backbone from {t.pretrained}"
+    else:
+        start = "backbone from random weights"
+    how = "then frozen, attention and head" if t.freeze_backbone else "then the whole model"
+    return (f"{what}, {start}, {how} trained for {t.epochs} epoch{'s' * (t.epochs != 1)} "
+            f"({t.optimizer}, lr {t.lr:g}, seed {t.seed})")
 
 
 def preset_names() -> list[str]:

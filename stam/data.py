@@ -8,7 +8,9 @@ action and contact_onset when present). Videos are read with :func:`gelsim.video
 
 Decoded frames are resized (squashed) to ``S x S`` px with area averaging and cached as
 ``uint8 (T, S, S, 3)`` ``.npy`` files under ``DIR/.stam-cache/`` (or a user cache directory
-when DIR is read-only), written atomically, so that only the first pass decodes video.
+when DIR is read-only), written atomically, so that only the first pass decodes video. A cache
+file's name holds the sequence id and :meth:`TactileDataset.cache_key` (the video's checksum, size
+and modification time), so a video changed since is decoded again.
 Beside them per-frame contact scores (``float32 (T, 2)``) and the sequence's noise level are
 cached (``.npz``) for onset detection.
 """
@@ -99,36 +101,9 @@ def model_input(frame: np.ndarray, size: int, crop: float = 1.0) -> np.ndarray:
 
 
 def load_manifest(data_dir: str | Path) -> dict:
-    """Read and check ``DIR/manifest.json``; raise StamError for a missing, foreign or
-    incomplete dataset."""
-    d = Path(data_dir)
-    path = d / schema.MANIFEST
-    if not d.is_dir():
-        raise StamError(f"dataset directory {d} does not exist; pass the --out directory of `gelsim generate`")
-    if not path.is_file():
-        raise StamError(f"{d} has no {schema.MANIFEST}; pass a directory made by `gelsim generate`")
-    try:
-        m = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise StamError(f"cannot read {path} ({e}); regenerate the dataset") from None
-    problem = schema.manifest_problem(m)
-    if problem:
-        raise StamError(f"{path}: {problem}; pass a directory made by this version of `gelsim generate`")
-    if m.get("complete") is not True:
-        raise StamError(f"dataset {d} is incomplete (complete: false); rerun `gelsim generate` to finish it")
-    for key in ("fabrics", "sequences"):
-        if not isinstance(m.get(key), list) or not m[key]:
-            raise StamError(f"{path} has no {key}; regenerate the dataset")
-    ids = {f["id"] for f in m["fabrics"]}
-    for s in m["sequences"]:
-        for key in schema.READ_FIELDS:
-            if key not in s:
-                raise StamError(f"sequence {s.get('id', '?')} in {path} lacks {key!r}; regenerate the dataset")
-        if s["fabric_id"] not in ids:
-            raise StamError(f"sequence {s['id']} names unknown fabric {s['fabric_id']}; regenerate the dataset")
-        if s["split"] not in SPLITS:
-            raise StamError(f"sequence {s['id']} has split {s['split']!r}, expected one of {SPLITS}")
-    return m
+    """Read and check ``DIR/manifest.json`` (:func:`gelsim.schema.load_manifest`); raise StamError for a
+    missing, foreign or incomplete dataset, or one a sequence of which lacks what stam reads."""
+    return schema.load_manifest(data_dir, complete=True, error=StamError)
 
 
 def _writable(d: Path) -> bool:
@@ -253,6 +228,7 @@ class TactileDataset:
                      s.get("contact_onset"), self.dir / s["video"])
             for s in self.manifest["sequences"]]
         self.cache_dir = Path(cache_dir) if cache_dir else default_cache_dir(self.dir)
+        self._video_sha = {s["id"]: str((s.get("sha256") or {}).get("video", "")) for s in self.manifest["sequences"]}
 
     @property
     def num_classes(self) -> int:
@@ -262,19 +238,36 @@ class TactileDataset:
         check_choice("split", name, SPLITS, StamError)
         return [s for s in self.sequences if s.split == name]
 
+    def cache_key(self, seq: Sequence) -> str:
+        """What ``seq``'s cached frames and scores were made from: the manifest's checksum of its video and
+        the video's size and modification time (ns; for a directory of PNGs, over its files), hashed to 16
+        hex digits. A video regenerated or copied over since gets another key, so its stale cache is not
+        read (the cache was keyed by the sequence id alone)."""
+        v = seq.video
+        try:
+            if v.is_dir():
+                stats = [f.stat() for f in sorted(v.iterdir())]
+                size, mtime = sum(st.st_size for st in stats), max((st.st_mtime_ns for st in stats), default=0)
+            else:
+                st = v.stat()
+                size, mtime = st.st_size, st.st_mtime_ns
+        except FileNotFoundError:
+            raise StamError(f"video {v} listed in the manifest is missing; regenerate the dataset") from None
+        text = f"{self._video_sha.get(seq.id, '')}:{size}:{mtime}"
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
     def _paths(self, seq: Sequence, size: int) -> tuple[Path, Path]:
         d = self.cache_dir / (f"{size}px" if self.crop == 1.0 else f"{size}px-crop{self.crop:g}")
-        return d / f"{seq.id}.npy", self.cache_dir / "scores-v4" / f"{seq.id}.npz"
+        key = f"{seq.id}-{self.cache_key(seq)}"
+        return d / f"{key}.npy", self.cache_dir / "scores-v4" / f"{key}.npz"
 
     def prepare(self, seq: Sequence, size: int) -> None:
         """Decode ``seq`` once and cache its resized frames and contact scores."""
-        fpath, spath = self._paths(seq, size)
+        fpath, spath = self._paths(seq, size)   # (a missing video is said here)
         if fpath.is_file() and spath.is_file():
             return
         from gelsim.video import read_video
 
-        if not seq.video.exists():
-            raise StamError(f"video {seq.video} listed in the manifest is missing; regenerate the dataset")
         frames = read_video(seq.video)
         if frames.shape[0] < 1:
             raise StamError(f"video {seq.video} has no frames; regenerate the dataset")

@@ -7,7 +7,7 @@ per local rank; gloo on CPUs) and:
 * checks that every rank resolved the same configuration (a node started with other arguments or
   another preset file): rank 0 reports the keys that differ, in one line, and every rank exits 2;
 * draws the same global batches as one process would (:func:`global_batches`: the order of
-  ``stam.train.make_loader``) and gives each rank its share of every batch (:class:`RankBatches`).
+  ``make_loader``) and gives each rank its share of every batch (:class:`RankBatches`).
   Each rank's summed loss is scaled by ``world / global batch``, so DDP's gradient average is the
   gradient of the global batch's mean loss, as in one process; a rank whose share of a short last
   batch is empty gets one sample with weight 0 (DDP needs every rank in every step);
@@ -29,7 +29,7 @@ import numpy as np
 import torch
 import torch.distributed as td
 from torch import nn
-from torch.utils.data import Sampler
+from torch.utils.data import DataLoader, Sampler
 
 from .errors import StamError
 
@@ -104,11 +104,17 @@ def barrier() -> None:
     td.barrier()
 
 
+def make_loader(ds, batch_size: int, shuffle: bool, seed: int, epoch: int, workers: int) -> DataLoader:
+    """The loader of one epoch of ``ds`` (:mod:`stam.train`'s, one process or all ranks together): its
+    order is drawn from a generator per (seed, epoch), so a resumed run draws the same batches."""
+    g = torch.Generator().manual_seed(seed * 100003 + epoch)
+    return DataLoader(ds, batch_size=batch_size, shuffle=shuffle, generator=g, num_workers=workers,
+                      drop_last=False)
+
+
 def global_batches(n: int, batch_size: int, seed: int, epoch: int) -> list[list[int]]:
     """The batches of indices (into a dataset of ``n`` items) that one process trains on in
-    ``epoch``: those of :func:`stam.train.make_loader`, drawn from the same generator."""
-    from .train import make_loader
-
+    ``epoch``: those of :func:`make_loader`, drawn from the same generator."""
     return [b.tolist() for b in make_loader(range(n), batch_size, True, seed, epoch, 0)]
 
 

@@ -31,10 +31,11 @@ from torch.utils.data import DataLoader, Subset
 
 from gelsim.atomic import atomic_open, atomic_write_text
 
-from . import models
+from . import distributed, models
 from .backbone import AlexNet, feature_size, fold_batchnorm
-from .config import TrainConfig, default_preset, load_preset, parse_sets, resolve_train
+from .config import TrainConfig, default_preset, describe_run, load_preset, parse_sets, resolve_train
 from .data import DEFAULT_ONSET_THRESHOLD, FrameDataset, TactileDataset, WindowDataset, backbone_features
+from .distributed import make_loader
 from .errors import StamError
 
 
@@ -79,13 +80,6 @@ def load_backbone(model_backbone: torch.nn.Module, path: str) -> None:
                           "pretrain with the same width") from None
 
 
-def make_loader(ds, batch_size: int, shuffle: bool, seed: int, epoch: int, workers: int) -> DataLoader:
-    # A generator per epoch (seed, epoch) makes the shuffling order independent of resumes.
-    g = torch.Generator().manual_seed(seed * 100003 + epoch)
-    return DataLoader(ds, batch_size=batch_size, shuffle=shuffle, generator=g, num_workers=workers,
-                      drop_last=False)
-
-
 def run_epoch(model, loader, device, forward, optimizer=None, progress=False, desc="", shares=None,
               dist=None) -> tuple[float, float]:
     """One pass; trains when ``optimizer`` is given. Returns (mean loss, accuracy in [0, 1]).
@@ -123,9 +117,7 @@ def run_epoch(model, loader, device, forward, optimizer=None, progress=False, de
             correct += (logits.argmax(1) == y).sum().item()
             count += n
     if dist is not None:
-        from .distributed import all_sum
-
-        total_loss, correct, count = all_sum([total_loss, correct, count], device)
+        total_loss, correct, count = distributed.all_sum([total_loss, correct, count], device)
     return total_loss / max(count, 1), correct / max(count, 1)
 
 
@@ -191,8 +183,6 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
     if dist is None:
         device = resolve_device(cfg.device)
     else:
-        from . import distributed
-
         device = distributed.init(dist, cfg.device)
     data = data or TactileDataset(cfg.data, cfg.cache_dir or None, crop=cfg.crop)
     seed_everything(cfg.seed)
@@ -437,8 +427,6 @@ def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict
         raise StamError(f"the backbone would be pretrained at width {plan.width:g} but trained at width "
                           f"{cfg.width:g}; give [pretrain] and [train] the same width in a preset file, "
                           "or pass --pretrained PATH|none")
-    from . import distributed
-
     dist = distributed.from_env()
     if dist is not None:
         # Before anything is read or written: every rank must be about to run the same thing.
@@ -449,7 +437,7 @@ def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict
             log = note = None
     if chosen is not None and note:
         why = "no CUDA device" if chosen != "paper" else "a CUDA device is available"
-        note(f"stam train: no --preset given and {why}: using the {chosen} preset: {p.describe()}; "
+        note(f"stam train: no --preset given and {why}: using the {chosen} preset: {describe_run(cfg, plan)}; "
              "see `stam train --help`")
     dataset = TactileDataset(cfg.data, cfg.cache_dir or None, crop=cfg.crop)
     shortest = min(s.num_frames for s in dataset.sequences)

@@ -1,10 +1,10 @@
-"""Fit the pyramid imprint's force law to the elastic model and write assets/imprint_law.toml.
+"""Fit the pyramid imprint's force law to the elastic model and write gelsim/assets/imprint_law.toml.
 
 The pyramid model (gelsim/gel/pyramid.py) is no longer a default level (the two-scale model
 replaced it); its law is kept so that it can be compared. A few minutes:
 
     .venv/bin/python tools/fit_pyramid_law.py           # print the fit and its residuals
-    .venv/bin/python tools/fit_pyramid_law.py --write   # also write assets/imprint_law.toml
+    .venv/bin/python tools/fit_pyramid_law.py --write   # also write gelsim/assets/imprint_law.toml
 """
 from __future__ import annotations
 
@@ -173,7 +173,7 @@ def write_law(values: dict[str, Any], path=LAW_FILE) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--write", action="store_true", help="write the fitted constants to assets/imprint_law.toml")
+    ap.add_argument("--write", action="store_true", help="write the fitted constants to gelsim/assets/imprint_law.toml")
     ap.add_argument("--resolution", type=int, default=480, help="fit resolution, px across [default: 480]")
     args = ap.parse_args()
     values = fit_pyramid_law(resolution_px=args.resolution)

@@ -1,4 +1,4 @@
-"""Write assets/johnson.toml: the texture map's tables for the 1-D and 2-D waves.
+"""Write gelsim/assets/johnson.toml: the texture map's tables for the 1-D and 2-D waves.
 
 Each row solves one wave exactly (periodic Polonsky-Keer, gelsim.gel.johnson.periodic_contact)
 at p / p* = s and fits the span slope that makes the two-scale imprint's pointwise map keep the

@@ -43,6 +43,16 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescript
         return super()._get_help_string(action)
 
 
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with the CLI's error contract: a bad option (an unknown one, a bad number or choice, a
+    missing required one) is one line ``PROG: error: <problem>; see `PROG --help``` on stderr and
+    status 2, without argparse's usage block. Sub-command parsers inherit it."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"{self.prog}: error: {message}; see `{self.prog} --help`", file=sys.stderr)
+        sys.exit(2)
+
+
 def print_json(obj) -> None:
     """Write one JSON document to stdout (the ``--json`` contract of every command)."""
     json.dump(obj, sys.stdout, indent=2, default=json_default)
@@ -60,8 +70,22 @@ def print_result(as_json: bool, doc, *lines: str) -> int:
     return 0
 
 
+def warn(prog: str, message: str) -> None:
+    """One line ``PROG: warning: <message>`` on stderr: the result was made, but not as asked."""
+    print(f"{prog}: warning: {message}", file=sys.stderr)
+
+
+def warn_if_bottomed(prog: str, bottomed: bool, carried_n: float, asked_n: float | None) -> None:
+    """Out-of-range physics said on stderr, not only in ``--json``: the pad reached its full travel."""
+    if not bottomed:
+        return
+    asked = "" if asked_n is None else f" of the {asked_n:g} N asked"
+    warn(prog, f"the gel bottomed out (pressed to its full travel) and carries {carried_n:.3g} N{asked}; "
+               "ask for less force or depth to stay within the gel's range")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="gelsim",
         description="GelSight tactile simulator and synthetic dataset generator.",
         formatter_class=HelpFormatter,

@@ -8,11 +8,11 @@ from . import HelpFormatter, print_json
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("fabrics", help="the fabric catalog: list, preview, contact sheet",
-                              description="The procedural fabric catalog (assets/fabrics/).",
+                              description="The procedural fabric catalog (gelsim/assets/fabrics/).",
                               formatter_class=HelpFormatter)
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--catalog", default=None, metavar="PATH",
-                        help="catalog folder or .toml file (None: the shipped assets/fabrics/)")
+                        help="catalog folder or .toml file (None: the shipped gelsim/assets/fabrics/)")
     sub = p.add_subparsers(dest="fabrics_command", metavar="SUBCOMMAND")
     p.set_defaults(handler=lambda args: (p.print_help(), 2)[1])
 

@@ -26,7 +26,7 @@ def register(sub) -> None:
             "         cpu   = 100 fabrics x 20 sequences at 320x240, balanced, split 7:2:11 (sized for\n"
             "                 `stam experiment --preset cpu`: 1,100 test sequences resolve a few points;\n"
             "                 13 min on 2 cores). With --resolution 960x720, the camera's own frames: about\n"
-            "                 2.5x the time, and every Tables I/II cell 11-19 points higher (README).\n"
+            "                 2.5x the time, and every Tables I/II cell 11-19 points higher (docs/stam_results.md).\n"
             "Options given with a preset override it."),
     )
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (new, empty, or a dataset to resume)")
@@ -40,7 +40,7 @@ def register(sub) -> None:
     p.add_argument("--frames", metavar="MIN-MAX", help="frames per sequence, pre-contact included [default: 25-36]")
     p.add_argument("--precontact", metavar="MIN-MAX",
                    help="pre-contact frames per sequence (sensor approaching, nothing touching), uniform in the "
-                        "range [default: assets/motions.toml's mixture: 0-1 frames, and 6-12 for 20%% of sequences, "
+                        "range [default: gelsim/assets/motions.toml's mixture: 0-1 frames, and 6-12 for 20%% of sequences, "
                         "as the paper's Table II implies]")
     p.add_argument("--profile", metavar="NAME|PATH", help="sensor profile [default: vitac, 960x720]")
     p.add_argument("--resolution", metavar="WxH", help="render at this size, same field of view in mm [default: the profile's]")

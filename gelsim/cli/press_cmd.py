@@ -46,6 +46,9 @@ def run_press(args: argparse.Namespace) -> int:
                    angle_deg=args.angle_deg)
     rep = press_report(obj, args.force_n, profile=args.profile, fidelity=args.fidelity,
                        resolution_px=args.resolution_px)
+    from . import warn_if_bottomed
+
+    warn_if_bottomed("gelsim press", rep["bottomed_out"], rep["gel_force_n"], args.force_n)
     if args.json:
         print_json(rep)
         return 0

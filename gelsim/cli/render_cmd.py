@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import time
 
-from . import HelpFormatter, print_result
+from . import HelpFormatter, print_result, warn_if_bottomed
 from ..frame import DEFAULT_FORCE_N
 from ..optics import BACKENDS
 
@@ -60,6 +60,9 @@ def run(args) -> int:
                              device=args.device)
     t = time.perf_counter()
     write_png(out, rgb)
+    imp = info["imprint"]
+    asked = None if args.depth_mm is not None else (DEFAULT_FORCE_N if args.force_n is None else args.force_n)
+    warn_if_bottomed("gelsim render", imp["bottomed_out"], imp["normal_force_n"], asked)
     info["stages_ms"]["write_png"] = round((time.perf_counter() - t) * 1e3, 2)
     info["total_ms"] = round((time.perf_counter() - t0) * 1e3, 2)
     info["out"] = str(out)

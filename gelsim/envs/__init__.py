@@ -1,18 +1,48 @@
 """Gymnasium environments with GelSight tactile observations (optional: ``make gym`` installs gymnasium).
 
-:class:`GraspEnv` is importable only when gymnasium is installed; importing this package without it
+Importing this package registers every environment of :data:`ENVS` with Gymnasium, so that::
+
+    import gymnasium as gym
+    import gelsim.envs  # noqa: F401  (registers the gelsim/ ids)
+
+    env = gym.make("gelsim/Grasp-v0", render_mode="rgb_array")
+    envs = gym.make_vec("gelsim/Grasp-v0", num_envs=4)
+
+(``gym.make("gelsim.envs:gelsim/Grasp-v0")`` imports it on the way). Importing it without gymnasium
 raises a GelsimError naming the install command.
 """
 from __future__ import annotations
 
 try:
-    import gymnasium  # noqa: F401
+    import gymnasium
 except ImportError:  # the optional extra is missing
     from ..errors import GelsimError
 
     raise GelsimError("gelsim.envs needs gymnasium, an optional extra; install it with `make gym` "
-                      "(or .venv/bin/pip install -e '.[gym]')") from None
+                      "(or pip install 'gelsim[gym]')") from None
 
 from .grasp import GraspEnv  # noqa: E402
 
-__all__ = ["GraspEnv"]
+#: Every registered environment: id -> keyword arguments of ``gymnasium.register`` (``entry_point`` as
+#: "module:attr"; add ``vector_entry_point`` for an environment that steps a batch itself, which
+#: ``gym.make_vec`` then uses). Register a new environment by adding a row here.
+ENVS: dict[str, dict] = {
+    "gelsim/Grasp-v0": {"entry_point": "gelsim.envs.grasp:GraspEnv"},
+    # the same task, its sensors batched on a torch device (gelsim.mujoco.batch): gym.make_vec steps all
+    # environments' pads in one render per step; gym.make gives the single GraspEnv with the same profile
+    "gelsim/GraspBatched-v0": {"entry_point": "gelsim.envs.grasp:GraspEnv", "kwargs": {"profile": "vitac"},
+                               "vector_entry_point": "gelsim.envs.vector:GraspVectorEnv"},
+}
+
+
+def register_envs() -> list[str]:
+    """Register each of :data:`ENVS` with Gymnasium that is not registered yet; returns the ids."""
+    for env_id, kwargs in ENVS.items():
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, **kwargs)
+    return list(ENVS)
+
+
+register_envs()
+
+__all__ = ["ENVS", "GraspEnv", "register_envs"]

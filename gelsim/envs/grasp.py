@@ -10,6 +10,10 @@ seed unless ``object`` is given). One step is one tactile camera frame (1/30 s o
   height above its start (m);
 * reward: the object's rise since the start, m, per step; the episode ends (terminated) once it
   is LIFT_GOAL_M up, or after ``max_steps`` (truncated).
+* ``render_mode="rgb_array"``: :meth:`GraspEnv.render` returns the two tactile images side by side,
+  uint8 (H, 2 W, 3) RGB, left finger first (what the gripper feels; it needs no OpenGL).
+
+Registered with Gymnasium as ``gelsim/Grasp-v0`` (:mod:`gelsim.envs`).
 """
 from __future__ import annotations
 
@@ -32,13 +36,18 @@ _STATE_HIGH = np.array([0.2, 100.0, 100.0, 0.2], np.float32)
 
 class GraspEnv(gym.Env):
     """See the module docstring. ``resolution``: tactile image (width, height) px; ``profile``:
-    sensor profile; ``object``: one of OBJECTS (None: drawn per episode); ``max_steps``."""
-    metadata = {"render_modes": [], "render_fps": FPS}
+    sensor profile; ``object``: one of OBJECTS (None: drawn per episode); ``max_steps``;
+    ``render_mode``: None or "rgb_array" (see the module docstring)."""
+    metadata = {"render_modes": ["rgb_array"], "render_fps": FPS}
 
     def __init__(self, *, resolution: tuple[int, int] = (64, 48), profile: str = "gelsight-mini",
-                 object: str | None = None, max_steps: int = 90):
+                 object: str | None = None, max_steps: int = 90, render_mode: str | None = None):
         if object is not None and object not in OBJECTS:
             raise GelsimError(f"unknown object {object!r}; choose one of {', '.join(OBJECTS)} or None")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise GelsimError(f"render_mode {render_mode!r} is not supported; give 'rgb_array' or None")
+        self.render_mode = render_mode
+        self._last: tuple[np.ndarray, np.ndarray] | None = None
         self.resolution, self.profile, self.object, self.max_steps = tuple(resolution), profile, object, int(max_steps)
         w, h = self.resolution
         img = spaces.Box(0, 255, (h, w, 3), np.uint8)
@@ -49,12 +58,10 @@ class GraspEnv(gym.Env):
 
     def _obs(self):
         tl, tr = (s.render() for s in self._sensors)
-        d = self._scene.data
-        z = d.qpos[self._hand_q]
-        rise = d.xpos[self._obj][2] - self._obj_z0
-        state = np.array([z, tl.normal_force_n, tr.normal_force_n, rise], np.float32)
-        return {"tactile_left": tl.rgb, "tactile_right": tr.rgb,
-                "state": np.clip(state, -_STATE_HIGH, _STATE_HIGH)}, float(rise)
+        self._last = (tl.rgb, tr.rgb)
+        state, rise = state_vector(self._scene.data, self._hand_q, self._obj, self._obj_z0, tl.normal_force_n,
+                                   tr.normal_force_n)
+        return {"tactile_left": tl.rgb, "tactile_right": tr.rgb, "state": state}, rise
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
@@ -74,18 +81,38 @@ class GraspEnv(gym.Env):
         return obs, {"object": kind}
 
     def step(self, action):
-        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-        sc = self._scene
-        m, d = sc.model, sc.data
-        n = int(round(1.0 / FPS / m.opt.timestep))
-        self._target = float(np.clip(self._target + a[0] * HAND_SPEED_M_S / FPS, -0.01, 0.15))
-        grip = -1.0 + (MAX_GRIP_N + 1.0) * (a[1] + 1.0) / 2.0
-        d.ctrl[sc.act_hand] = self._target
-        d.ctrl[sc.act_left] = d.ctrl[sc.act_right] = grip
-        for _ in range(n):
-            mujoco.mj_step(m, d)
+        self._target = advance(self._scene.model, self._scene.data, self._scene, self._target, action)
         self._steps += 1
         obs, rise = self._obs()
         terminated = rise >= LIFT_GOAL_M
         truncated = self._steps >= self.max_steps
         return obs, rise, bool(terminated), bool(truncated), {}
+
+    def render(self):
+        """With ``render_mode="rgb_array"``: both tactile images of the last step side by side, uint8
+        (H, 2 W, 3) RGB; None otherwise (Gymnasium's convention)."""
+        if self.render_mode is None or self._last is None:
+            return None
+        return np.concatenate(self._last, axis=1)
+
+
+def advance(model, data, scene, target: float, action) -> float:
+    """One step's physics (1/FPS s of it) of a grasp scene (``scene``'s actuator ids; ``model``, ``data`` its
+    model and this environment's state) under ``action`` (see the module docstring): returns the hand's new
+    target height, m."""
+    a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+    n = int(round(1.0 / FPS / model.opt.timestep))
+    target = float(np.clip(target + a[0] * HAND_SPEED_M_S / FPS, -0.01, 0.15))
+    grip = -1.0 + (MAX_GRIP_N + 1.0) * (a[1] + 1.0) / 2.0
+    data.ctrl[scene.act_hand] = target
+    data.ctrl[scene.act_left] = data.ctrl[scene.act_right] = grip
+    for _ in range(n):
+        mujoco.mj_step(model, data)
+    return target
+
+
+def state_vector(data, hand_q: int, obj: int, obj_z0: float, left_n: float, right_n: float):
+    """The observation's ``state`` (float32 (4,), clipped to its Box) and the object's rise (m) of a grasp scene."""
+    rise = float(data.xpos[obj][2] - obj_z0)
+    state = np.array([data.qpos[hand_q], left_n, right_n, rise], np.float32)
+    return np.clip(state, -_STATE_HIGH, _STATE_HIGH), rise

@@ -3,7 +3,7 @@
 ::
 
     from gelsim.fabrics import load_catalog, heightfield
-    cat = load_catalog()                 # assets/fabrics/*.toml, validated, cached
+    cat = load_catalog()                 # gelsim/assets/fabrics/*.toml, validated, cached
     h = heightfield(cat[12], x0_mm=0, y0_mm=0, width_px=960, height_px=720, mm_per_px=0.0197)
 
 Modules: :mod:`.catalog` (data model, loading, validation), :mod:`.noise`

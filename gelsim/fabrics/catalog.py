@@ -1,4 +1,4 @@
-"""The fabric catalog: TOML entries under ``assets/fabrics/`` into frozen :class:`Fabric` records.
+"""The fabric catalog: TOML entries under ``gelsim/assets/fabrics/`` into frozen :class:`Fabric` records.
 
 Each ``*.toml`` file in the catalog folder holds ``[[fabric]]`` entries (one file
 per family group). Adding a fabric is adding an entry: every geometric
@@ -283,7 +283,7 @@ _CACHE: dict[tuple, Catalog] = {}
 
 
 def load_catalog(path: str | Path | None = None) -> Catalog:
-    """The validated catalog at ``path`` (default ``assets/fabrics/``), cached until its files change."""
+    """The validated catalog at ``path`` (default ``gelsim/assets/fabrics/``), cached until its files change."""
     path = Path(path) if path is not None else CATALOG_DIR
     files = _catalog_files(path)
     key = (str(path.resolve()),) + tuple((str(f), f.stat().st_mtime_ns, f.stat().st_size) for f in files)

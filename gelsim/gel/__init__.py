@@ -136,6 +136,20 @@ def _check_inputs(protrusion_mm, force_n, depth_mm, texture_mm, valley_mm=None):
     return p
 
 
+def gel_capacity_n(profile) -> float:
+    """An upper bound on the normal force, N, the gel of ``profile`` can carry within its travel: its whole
+    field pressed flat to ``max_indentation_mm``, in confined compression (the stiffest a bonded layer
+    responds: modulus E (1 - nu) / ((1 + nu) (1 - 2 nu))). Any object, dome or cloth carries less at
+    full travel, so a larger request bottoms the pad out whatever it presses; inf for nu = 0.5."""
+    gel = profile.gel
+    nu = gel.poisson_ratio
+    if nu >= 0.5:
+        return math.inf
+    modulus = gel.young_modulus_mpa * (1 - nu) / ((1 + nu) * (1 - 2 * nu))
+    fw, fh = profile.field_mm
+    return fw * fh * modulus * gel.max_indentation_mm / gel.thickness_mm
+
+
 def work_shape(profile, scale: float) -> tuple[int, int]:
     """The imprint grid of ``profile`` at ``scale`` times its image resolution (at least 8x8)."""
     h, w = profile.shape
@@ -185,6 +199,11 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
     if (force_n is not None and force_n == 0) or (depth_mm is not None and depth_mm == 0):
         return _no_contact(profile)
     gel = profile.gel
+    beyond = force_n is not None and force_n > gel_capacity_n(profile)
+    if beyond:
+        # More than the gel can carry at full travel (1e20 N overflowed the float32 solve into NaN): the
+        # pad bottoms out whatever it presses, so press it to its travel (the same bottomed imprint).
+        force_n, depth_mm = None, gel.max_indentation_mm
     ws = work_shape(profile, fidelity.imprint_scale)
     if prot.shape == profile.shape:
         work = resize(np.ascontiguousarray(prot, dtype=np.float32), ws, cv2.INTER_AREA)
@@ -228,8 +247,13 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
     depth = resize(depth_w, profile.shape)
     mask = mask_w if mask_w.shape == profile.shape else resize(mask_w.astype(np.float32), profile.shape) >= 0.5
     depth = depth.astype(np.float32, copy=False)  # finite and >= 0 by construction
+    if not (math.isfinite(force) and math.isfinite(delta) and math.isfinite(float(depth.max()))):
+        # checked in the solve's own precision (float32), never handed on as NaN
+        raise GelsimError(f"the imprint solve did not converge to finite values (force {force} N, approach "
+                          f"{delta} mm); press with a force within the gel's range, below "
+                          f"{gel_capacity_n(profile):.0f} N")
     area = float(np.count_nonzero(mask_w)) * dx * dx
-    return Imprint(depth, mask, float(delta), float(force), area, bool(bottomed), state)
+    return Imprint(depth, mask, float(delta), float(force), area, bool(bottomed or beyond), state)
 
 
 def _envelope_reader(envelope_mm, prot_shape, ws) -> Callable[[tuple[int, int, int, int]], np.ndarray]:

@@ -14,7 +14,7 @@ Higginson, Int. J. Mech. Sci. 27, 1985). A rigid wave pressed on an elastic half
   ``p* = sqrt(2) pi E* h / L``; at light load each crown is a Hertz contact (radius of
   curvature ``L^2 / (4 pi^2 h)``, load ``p L^2 / 2``). In between there is no closed form;
   :func:`periodic_contact` solves it (exact for the discretised problem) and the table in
-  ``assets/johnson.toml`` holds the result.
+  ``gelsim/assets/johnson.toml`` holds the result.
 
 Written with the wave's crown-to-valley depth ``D`` and the wavenumber ``q = rms slope /
 rms height`` (``2 pi / L`` in 1-D, ``sqrt(2) 2 pi / L`` for the 2-D wave), both cases share
@@ -160,7 +160,7 @@ def depth_map(t: np.ndarray, cut: np.ndarray | float, lam: np.ndarray | float) -
 
 
 # --------------------------------------------------------------------------------------
-# Tables of the map (assets/johnson.toml, written by tools/johnson_tables.py)
+# Tables of the map (gelsim/assets/johnson.toml, written by tools/johnson_tables.py)
 # --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class MapTable:
@@ -179,7 +179,7 @@ KEYS = ("contact_fraction", "kept", "zeta", "lam")
 
 @functools.cache
 def map_tables() -> dict[str, MapTable]:
-    """The '1d' and '2d' tables from ``assets/johnson.toml`` (both on one grid of s)."""
+    """The '1d' and '2d' tables from ``gelsim/assets/johnson.toml`` (both on one grid of s)."""
     data = load_toml(TABLE_FILE)
     out = {}
     for kind in ("1d", "2d"):
@@ -251,7 +251,7 @@ def segment_arrays() -> tuple:
     slopes per grid step, likewise).
 
     The grid's step is the tables' narrowest segment when every node lies on it (as in
-    assets/johnson.toml: 0.005), so the lookup is the tables' own linear interpolation."""
+    gelsim/assets/johnson.toml: 0.005), so the lookup is the tables' own linear interpolation."""
     tabs = map_tables()
     s = tabs["1d"].s
     step = float(np.min(np.diff(s)))

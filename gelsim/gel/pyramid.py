@@ -5,7 +5,7 @@ The object's penetration ``I = max(P - (P_max - delta), 0)`` is spread by a Gaus
 object), then the membrane blur. The approach for a force comes from a law fitted to the elastic
 model, ``F = c E* V / sqrt(A) / R(kappa a / h)^beta`` (V the volume under the pyramid's gel
 surface, A the apparent contact area, R the layer's mean compliance under a disk), with the
-constants in ``assets/imprint_law.toml`` (fitted by ``tools/fit_pyramid_law.py``). The contact is
+constants in ``gelsim/assets/imprint_law.toml`` (fitted by ``tools/fit_pyramid_law.py``). The contact is
 where the last clamp holds and the penetration exceeds ``contact_fraction`` of its peak.
 
 It was gelsim's default until the texture study (docs/imprint.md): on a texture the pyramid's
@@ -55,7 +55,7 @@ class ImprintLaw:
 
 @functools.cache
 def imprint_law() -> ImprintLaw:
-    """The pyramid model's force-law constants from ``assets/imprint_law.toml``."""
+    """The pyramid model's force-law constants from ``gelsim/assets/imprint_law.toml``."""
     return build(ImprintLaw, load_toml(LAW_FILE).get("law", {}), where="imprint_law.law")
 
 

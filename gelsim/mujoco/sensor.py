@@ -18,12 +18,16 @@ columns along the geom's +x, rows along its +y (``docs/mujoco.md``). Per frame:
    the gel slips and stays at the limit.
 5. **Markers** (:func:`gelsim.markers.displace`) and the **camera image** (:class:`gelsim.optics.Renderer`).
 
+Steps 3 and 5 are the pipeline's one-frame function (:func:`gelsim.stream.make_frame`), the one that
+``gelsim render`` and every dataset frame run too.
+
 Frames without a contact force on the pad skip steps 2-4: they are the flat gel (exactly
 :meth:`GelSightSensor.background` without noise). MuJoCo runs in SI units; everything the sensor
 returns is in mm, N, degrees and px, like the rest of gelsim.
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -35,11 +39,13 @@ import numpy as np
 from ..contact import gel_stiffness
 from ..errors import GelsimError
 from ..fidelity import Fidelity, get_fidelity
-from ..gel import Imprint, gel_sag_mm, press, work_shape
-from ..markers import displace, marker_grid, rest_markers
+from ..gel import Imprint, gel_sag_mm, work_shape
+from ..markers import marker_grid
 from ..optics import Renderer
+from ..runtime import ThreadLimit
 from ..scene import PHYSICS_MM_PER_PX, HeightPatch
 from ..sensor import SensorProfile, load_profile
+from ..stream import FrameSetup, StageTimer, Touch, make_frame
 from .rays import MM, PadRays
 
 #: Geom types that can be a gel pad, with the distance of their flat +z face from the geom's centre
@@ -100,6 +106,54 @@ def find_pad(model: mujoco.MjModel, pad: str) -> tuple[int, float]:
     return gid, float(model.geom_size[gid][SUPPORTED_PAD_TYPES[gtype]])
 
 
+#: How far a pad's face may differ from the profile's field of view, as a fraction of the field
+#: (MJCF sizes are written to a few digits: attach's half-sizes 0.010144 m round 20.288 mm by 0.001%).
+PAD_FIELD_TOLERANCE = 0.02
+
+
+def whole_px(resolution) -> tuple[int, int]:
+    """``(width, height)`` px from ``resolution``: two whole numbers (320.0 is 320; 320.7 is refused,
+    not truncated)."""
+    try:
+        w, h = resolution
+        if not all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+                   and math.isfinite(v) and float(v).is_integer() for v in (w, h)):
+            raise ValueError
+    except (TypeError, ValueError):
+        raise GelsimError(f"resolution {resolution!r} is not (width, height) in whole px; give e.g. (320, 240)") from None
+    return int(w), int(h)
+
+
+def check_pad_size(model: mujoco.MjModel, pad_id: int, pad: str, profile: SensorProfile) -> None:
+    """GelsimError unless the pad's gel face matches ``profile``'s field of view (see GelSightSensor)."""
+    fw, fh = profile.field_mm
+    size_mm = model.geom_size[pad_id] / MM
+    gtype = mujoco.mjtGeom(int(model.geom_type[pad_id])).name.removeprefix("mjGEOM_").lower()
+    if gtype == "box":
+        face = (2 * float(size_mm[0]), 2 * float(size_mm[1]))
+        ok = abs(face[0] - fw) <= PAD_FIELD_TOLERANCE * fw and abs(face[1] - fh) <= PAD_FIELD_TOLERANCE * fh
+        shown = f"{face[0]:.2f} x {face[1]:.2f} mm"
+    else:
+        diag = math.hypot(fw, fh)
+        face = (2 * float(size_mm[0]),)
+        ok = abs(face[0] - diag) <= PAD_FIELD_TOLERANCE * diag
+        shown = f"a cylinder {face[0]:.2f} mm across (the field's diagonal is {diag:.2f} mm)"
+    if not ok:
+        raise GelsimError(
+            f"pad {pad!r} is {shown} but the {profile.name} profile sees {fw:.2f} x {fh:.2f} mm, so the sensor "
+            f"would image beyond the pad or only part of it; give the box pad half-sizes {fw / 2 * MM:.6f} "
+            f"{fh / 2 * MM:.6f} m in x and y (gelsim.mujoco.attach makes such a pad), or pick a profile of its size")
+
+
+def with_thread_limit(render):
+    """``render`` run under its sensor's ThreadLimit (``threads=`` of GelSightSensor)."""
+    @functools.wraps(render)
+    def limited(self):
+        with self._threads:
+            return render(self)
+    return limited
+
+
 class GelSightSensor:
     """A GelSight sensor on the geom ``pad`` of ``model`` (see the module docstring).
 
@@ -110,23 +164,35 @@ class GelSightSensor:
     noise on (True) or off. Frames depend only on the scene's state, the calls made so far since the
     last :meth:`reset` and these arguments: the same run gives the same frames.
 
+    ``threads``: how many threads numpy's BLAS and OpenCV may use inside :meth:`render` (default 1: one
+    frame is too small to share, and a BLAS thread left spinning doubled the CPU time per frame); the
+    caller's own settings are given back when ``render`` returns. ``None`` leaves them alone.
+    ``warmup``: the constructor renders one contact frame and throws it away, so that the one-off costs
+    (compiling the imprint's kernels, 0.4-0.6 s in a new process, and filling the renderer's tables)
+    are paid here, not by the first frame in contact; frames do not depend on it.
+
+    The pad must match the profile's field of view (``profile.field_mm``): a box whose +z face is that
+    rectangle (:func:`gelsim.mujoco.attach` makes one; :func:`gelsim.mujoco.attach.pad_size_m` gives its
+    half-sizes), or a cylinder whose cap holds it inscribed (diameter = the field's diagonal), within
+    :data:`PAD_FIELD_TOLERANCE`; any other pad is refused, since the sensor would see beyond it or only
+    part of it.
+
     The sensor reads ``data`` at each :meth:`render`; it never changes the model or the data.
     """
 
     def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, pad: str, *,
                  profile: str | Path | SensorProfile = "gelsight-mini", fidelity: str | Fidelity = "fast",
-                 resolution: tuple[int, int] | None = None, seed: int = 0, noise: bool = True):
+                 resolution: tuple[int, int] | None = None, seed: int = 0, noise: bool = True,
+                 threads: int | None = 1, warmup: bool = True):
         if not isinstance(model, mujoco.MjModel) or not isinstance(data, mujoco.MjData):
             raise GelsimError("GelSightSensor needs a mujoco.MjModel and its mujoco.MjData; "
                               "pass (model, data) of the running simulation")
+        self._threads = ThreadLimit(threads)
         self.model, self.data, self.pad_name = model, data, pad
         self.pad_id, self.face_offset_m = find_pad(model, pad)
         prof = profile if isinstance(profile, SensorProfile) else load_profile(profile)
         if resolution is not None:
-            try:
-                w, h = (int(v) for v in resolution)
-            except (TypeError, ValueError):
-                raise GelsimError(f"resolution {resolution!r} is not (width, height) in px; give e.g. (320, 240)") from None
+            w, h = whole_px(resolution)
             prof = prof.with_resolution(w, h)
         self.profile = prof
         self.fidelity = get_fidelity(fidelity)
@@ -138,11 +204,12 @@ class GelSightSensor:
             raise GelsimError(f"no geom of the model can ever touch pad {pad!r} (contype/conaffinity bits, "
                               "parent-child filtering), so the sensor would see no contact at all; give the pad "
                               "and the objects matching contype/conaffinity (MuJoCo's default 1/1 does)")
+        check_pad_size(model, self.pad_id, pad, prof)
         self.renderer = Renderer(prof, self.fidelity.render_backend, supersample=self.fidelity.supersample,
                                  seed=self.seed)
         self._rest = marker_grid(prof, seed=self.seed) if prof.markers.enabled else np.zeros((0, 2), np.float32)
-        self._flat_markers = rest_markers(prof, seed=self.seed) if prof.markers.enabled else None
-        self._background = self.renderer.render(None, self._flat_markers, noise=False)
+        self._setup = FrameSetup.make(prof, self.fidelity, sensor_seed=self.seed, renderer=self.renderer)
+        self._background = self.renderer.render(None, self._setup.flat_markers, noise=False)
         k_shear, k_tors, r_eff = gel_stiffness(prof)
         self._k_shear_n_mm = k_shear * MM          # N per mm of shear
         self._k_tors_nmm_rad = k_tors / MM         # N mm per rad
@@ -152,7 +219,22 @@ class GelSightSensor:
                           + _REACH_SLACK_CELLS * PHYSICS_MM_PER_PX)
         self._work = work_shape(prof, self.fidelity.imprint_scale)
         self.timings_ms: dict[str, float] = {}
+        if warmup:
+            with self._threads:
+                self._warm_up()
         self.reset()
+
+    def _warm_up(self) -> None:
+        """Press a 4 mm ball into the gel and render it (discarded): the first contact frame's one-off
+        costs, paid at construction. Nothing of it is kept but what every frame rebuilds alike."""
+        h, w = self._work
+        fw, fh = self.profile.field_mm
+        x = (np.arange(w) + 0.5) * (fw / w) - fw / 2
+        y = (np.arange(h) + 0.5) * (fh / h) - fh / 2
+        r2 = x[None, :] ** 2 + y[:, None] ** 2
+        ball_mm = 2.0                                      # radius of the ball pressed (any small one would do)
+        prot = np.sqrt(np.maximum(ball_mm ** 2 - r2, 0.0)).astype(np.float32)
+        make_frame(Touch(prot, force_n=0.5), self._setup, seed=np.random.default_rng(0), noise=self.noise)
 
     # -- state -------------------------------------------------------------------------------------
     def reset(self) -> None:
@@ -263,52 +345,41 @@ class GelSightSensor:
         fw = self.profile.field_mm[0]
         return np.maximum(patch.sample((h, w), fw / w, 0.0, 0.0, 0.0), 0.0)
 
+    @with_thread_limit
     def render(self) -> TactileFrame:
         """The tactile frame of the scene's current state (``data`` as it is now)."""
-        clock = time.thread_time
-        t0 = t = clock()
-        times: dict[str, float] = {}
-
-        def lap(stage: str) -> None:
-            nonlocal t
-            now = clock()
-            times[stage] = (now - t) * 1e3
-            t = now
-
+        timer = StageTimer()
+        t0 = timer.clock()
         prof = self.profile
         rng = np.random.default_rng([self.seed, self._frame])
         self._frame += 1
         found = self.contact_forces()
-        lap("forces")
+        timer.lap("forces")
         gaps = None
         if found is not None:
             gaps = self.rays.gaps_mm(self.data)
-            lap("rays")
+            timer.lap("rays")
             if not np.isfinite(gaps).any():   # pressed by something outside the field: no imprint
                 found = None
+        touch, slipping = None, False
         if found is None:
-            self._anchor, self._prev = None, None
-            rgb = (self.renderer.render(None, self._flat_markers, seed=rng) if self.noise
-                   else self._background.copy())
-            lap("render")
-            h, w = prof.shape
-            self.timings_ms = {**times, "total": (clock() - t0) * 1e3}
-            return TactileFrame(rgb, self._rest.copy(), self._rest.copy(), 0.0, np.zeros(2), np.zeros((h, w), bool),
-                                np.zeros((h, w), np.float32), np.zeros(2), 0.0, False, False, float(self.data.time))
-        normal, tang, torque, mu, body = found
-        prot = self.protrusion_mm(gaps)
-        lap("geometry")
-        imprint = press(prot, prof, self.fidelity, force_n=normal, warm=self._prev)
+            self._anchor = None
+        else:
+            normal, tang, torque, mu, body = found
+            prot = self.protrusion_mm(gaps)
+            shear, twist, slipping = self._stick_slip(body, normal, tang, torque, mu)
+            touch = Touch(prot, force_n=normal, shear_mm=tuple(shear), twist_deg=twist, warm=self._prev)
+            timer.lap("geometry")
+        imprint, markers, rgb = make_frame(touch, self._setup, seed=rng, noise=self.noise, timer=timer)
         self._prev = imprint
-        lap("imprint")
-        shear, twist, slipping = self._stick_slip(body, normal, tang, torque, mu)
-        markers = (displace(prof, self.fidelity, imprint, shear_mm=tuple(shear), twist_deg=twist, rest=self._rest)
-                   if prof.markers.enabled else None)
-        lap("markers")
-        rgb = self.renderer.render(imprint.depth_mm, markers, seed=rng, noise=self.noise)
-        lap("render")
-        self.timings_ms = {**times, "total": (clock() - t0) * 1e3}
-        xy = self._rest.copy() if markers is None else markers.xy_px
+        # (the optics stage has always been "render" here)
+        self.timings_ms = {("render" if k == "optics" else k): v * 1e3 for k, v in timer.take().items()}
+        self.timings_ms["total"] = (timer.clock() - t0) * 1e3
+        xy = self._rest.copy() if markers is None or imprint is None else markers.xy_px
+        if imprint is None:
+            h, w = prof.shape
+            return TactileFrame(rgb, xy, self._rest.copy(), 0.0, np.zeros(2), np.zeros((h, w), bool),
+                                np.zeros((h, w), np.float32), np.zeros(2), 0.0, False, False, float(self.data.time))
         return TactileFrame(rgb, xy, self._rest.copy(), float(normal), np.asarray(tang, float), imprint.contact_mask,
                             imprint.depth_mm, np.asarray(shear, float), float(twist), True, bool(slipping),
                             float(self.data.time))

@@ -1,31 +1,33 @@
 """Photometric rendering: gel imprint + markers + sensor profile -> uint8 RGB camera frame.
 
-:class:`Renderer` is the one place that chooses a backend. Both backends compute
-only the *shading change* of the deformed membrane over the flat gel; the flat
-background, the markers, the camera blur and noise and the quantisation are
-composited identically here, so the backends differ in shading alone:
+:class:`Renderer` is the one place that chooses a backend. Every backend computes only the
+*shading change* of the deformed membrane over the flat gel (a
+:class:`~gelsim.optics.shader.Shader`); the flat background, the markers, the supersampling's
+average, the camera noise and the quantisation are the stages of one composition
+(:mod:`gelsim.optics.composite`), so the backends differ in shading alone:
 
 * ``fast``: Lambert + Phong from surface normals under the profile's LEDs,
   numpy/OpenCV in float32, shading only the box around the imprint
   (:mod:`gelsim.optics.fast`);
-* ``fast`` with ``[shading] model = "lut"``: a table calibrated on real frames
-  (:mod:`gelsim.optics.lut`, written by ``gelsim calibrate``);
+* ``fast`` with ``[shading] model = "lut"``: a table calibrated on real frames, with its LED
+  shadows and its depth and halo terms (:mod:`gelsim.optics.lut`, written by ``gelsim calibrate``);
 * ``pyrender``: the deformed gel as a mesh lit by spot lights with shadows,
   OpenGL through OSMesa or EGL (:mod:`gelsim.optics.pyrender_backend`), the
   yardstick for ``fast``. It always shades from the profile's lights (a
   calibrated table has no meaning for a mesh renderer);
-* ``torch``: ``fast``'s shading in PyTorch on ``device`` (``cpu`` or ``cuda``), equal to
+* ``torch``: ``fast``'s optics in PyTorch on ``device`` (``cpu`` or ``cuda``), equal to
   ``fast`` within a stated tolerance (:mod:`gelsim.optics.torch_backend`, whose
-  ``BatchRenderer`` renders whole frames, markers and noise included, ``B`` at a time).
+  ``BatchRenderer`` runs the same composition on ``B`` frames at once).
 
-Each backend is a :class:`~gelsim.optics.shader.Shader` (its contract: ``delta``, ``parts``,
-``compose``, ``close``), found by name and checked when the Renderer loads it.
+Each primitive of these optics (blurs, slopes, resampling, Phong, the table's lookup, shadows,
+depth and halo terms, markers, noise and quantisation) has its numpy and its torch kernel side by
+side in :mod:`gelsim.optics.ops`, checked against each other op by op.
 
-Pipeline per frame (all float32 DN 0-255 until the last step)::
+Pipeline per frame (all float32 DN until the readout; ``s``: the supersampling)::
 
-    background (cached, vignetted, blurred) + blur(shading change) x vignetting
-      -> x (1 - darkness * blur(marker coverage)) -> [area-downsample if supersampled]
-      -> + noise(sqrt(read^2 + shot_gain * signal)) -> uint8 (saturating)
+    background (cached, vignetted, blurred) + blur(shading change) x vignetting [+ shadows + depth/halo terms]
+      -> x (1 - darkness * blur(marker coverage)) -> [area average over s x s blocks]
+      -> + noise(sqrt(read^2 + shot_gain * signal)) -> uint8 (rounded, saturating)
 
 The camera blur is applied to the shading change and to the marker coverage
 separately rather than to their product; the background is smooth, so the
@@ -33,19 +35,19 @@ difference is far below one DN.
 """
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from ..errors import GelsimError, check_choice
-from .composite import (NoiseBank, apply_marker_factors, blur_radius_px, gaussian_blur, marker_corners,
-                        marker_factors, to_uint8, to_uint8_rows)
-from .field import background_float, light_maps
+from . import composite
+from .composite import FrameInput, Optics, check_depth, frame_rng
+from .ops.filters import blur_radius_px, gaussian_blur
+from .ops.readout import to_uint8
+from .ops.resample import upsample
 from .shader import Shader, shader_class, work_array
 
 BACKENDS = ("fast", "pyrender", "torch")
-_STALE = object()           # Renderer._frame_flat: the frame buffer holds no flat gel under markers
 
-__all__ = ["Renderer", "render", "available_backends", "BACKENDS", "Shader"]
+__all__ = ["Renderer", "render", "available_backends", "check_depth", "BACKENDS", "Shader"]
 
 
 def available_backends() -> list[str]:
@@ -62,29 +64,6 @@ def available_backends() -> list[str]:
     return out
 
 
-def check_depth(depth_mm, shape: tuple[int, int]) -> np.ndarray | None:
-    """Validate an imprint: float32 C-contiguous ``(H, W)`` mm, finite, >= 0 (tiny negatives clipped)."""
-    if depth_mm is None:
-        return None
-    d = np.asarray(depth_mm)
-    if d.shape != tuple(shape):
-        raise GelsimError(f"depth map has shape {d.shape} but the profile's image is {tuple(shape)} (H, W); "
-                          "compute the imprint at the profile's resolution or use profile.with_resolution")
-    if not np.issubdtype(d.dtype, np.number):
-        raise GelsimError(f"depth map has dtype {d.dtype}; give float32 millimetres")
-    d = np.ascontiguousarray(d, dtype=np.float32)
-    lo, hi = float(d.min()), float(d.max())
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        raise GelsimError("depth map contains NaN or infinity; check the imprint computation")
-    # float error of an imprint model may leave -1e-7 mm; a real negative depth is a sign error
-    if lo < -1e-3:
-        raise GelsimError(f"depth map has negative values (min {lo:.4g} mm); the imprint is the depth "
-                          "pushed into the gel, >= 0")
-    if lo < 0:
-        d = np.maximum(d, 0.0)
-    return d
-
-
 class Renderer:
     """Renders frames of one sensor.
 
@@ -93,6 +72,10 @@ class Renderer:
     resolution (1-4), then area-average down; ``seed``: fixes the background's
     random illumination field and the noise bank; ``device``: where the ``torch``
     backend computes (``"cpu"``, ``"cuda"``; default the CPU), for no other backend.
+
+    Public inputs, read by :class:`~gelsim.optics.torch_backend.BatchRenderer`: ``optics``
+    (:class:`~gelsim.optics.composite.Optics`), ``shader`` (the backend's
+    :class:`~gelsim.optics.shader.Shader`), ``stages`` (:data:`~gelsim.optics.composite.STAGES`, built).
     """
 
     def __init__(self, profile, backend: str = "fast", *, supersample: int = 1, seed: int = 0,
@@ -108,98 +91,29 @@ class Renderer:
         self.backend = backend
         self.supersample = int(supersample)
         self.seed = int(seed)
-        h, w = profile.shape
-        s = self.supersample
-        self._fine = profile if s == 1 else profile.with_resolution(w * s, h * s)
-        maps = light_maps(self._fine)
-        self._blur_fine = profile.camera.blur_sigma_px * s
-        bg = gaussian_blur(background_float(self._fine, maps, self.seed), self._blur_fine)
-        self._bg_fine = bg
-        self._bg = bg if s == 1 else cv2.resize(bg, (w, h), interpolation=cv2.INTER_AREA)
+        self.optics = Optics.build(profile, self.supersample, self.seed)
+        fine, maps = self.optics.fine, self.optics.maps
         cls = shader_class(backend, profile)
-        self._shader: Shader = cls(self._fine, maps, device=device) if backend == "torch" else cls(self._fine, maps)
+        self.shader: Shader = cls(fine, maps, device=device) if backend == "torch" else cls(fine, maps)
+        self.stages = [stage(self.optics) for stage in composite.STAGES]
+        self._shape, self._fine_shape = profile.shape, self.optics.fine.shape + (3,)
         self._bufs: dict[str, np.ndarray] = {}
-        self._last_markers = None          # (corners, frame shape, marker_factors) of the last frame
-        # the marker_factors of the flat gel the "frame" work buffer holds, or _STALE (it holds shading)
-        self._frame_flat = _STALE
-        n = profile.noise
-        self._noise = NoiseBank(profile.shape, n.read_sigma_dn, n.shot_gain, self.seed)
+        # the last flat gel's frame after the stages before the readout, and those stages' states: reused
+        # while they are the same objects (the markers at rest before contact: 0.6 ms of copy and 0.3 of
+        # markers saved per 960x720 frame)
+        self._flat: tuple[list, np.ndarray] | None = None
 
     def background(self) -> np.ndarray:
         """The flat gel without markers or noise: uint8 ``(H, W, 3)`` RGB."""
-        return to_uint8(self._bg)
+        return to_uint8(self.optics.background)
 
     def background_float(self) -> np.ndarray:
         """The flat gel without markers or noise, unquantised: float32 ``(H, W, 3)`` DN (a copy)."""
-        return self._bg.copy()
+        return self.optics.background.copy()
 
     def render_float(self, depth_mm: np.ndarray | None, markers=None) -> np.ndarray:
         """The noiseless, unquantised frame: float32 ``(H, W, 3)`` DN (may leave 0-255 before saturation)."""
-        return self._compose(depth_mm, markers)[0].copy()
-
-    def _work(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
-        """A float32 work array kept between frames (:func:`~gelsim.optics.shader.work_array`)."""
-        return work_array(self._bufs, name, shape)
-
-    def _compose(self, depth_mm, markers, finish=None) -> tuple[np.ndarray, bool]:
-        """Like :meth:`render_float`, but returns ``(frame, finished)``: the cached background itself, or a
-        work buffer that the next frame overwrites (callers must not modify or keep it), and whether
-        ``finish(rows, y0)`` (optional) was called on every band of rows (float32 ``(n, W, 3)``, the
-        frame's rows ``y0:y0 + n``) of a shaded frame, its markers darkened, while the band was in the
-        cache (the frame is then composed nowhere else) (see :meth:`Shader.compose`; only without
-        supersampling: a supersampled frame is finished after its resize)."""
-        depth = check_depth(depth_mm, self.profile.shape)
-        corners = marker_corners(markers) if self.profile.markers.enabled else None
-        s = self.supersample
-        if s > 1:
-            h, w = self._fine.shape
-            if depth is not None:
-                depth = cv2.resize(depth, (w, h), interpolation=cv2.INTER_LINEAR)
-            if corners is not None:
-                # pixel centres at integers at both resolutions: x_fine = s (x + 1/2) - 1/2
-                corners = s * (corners + 0.5) - 0.5
-        bg = self._bg_fine
-        frame = self._work("frame", bg.shape)
-        # the markers' factors depend on their corners alone: computed first, so that bands can use them
-        factors = None if corners is None else self._marker_factors(corners, frame.shape)
-        band_finish = None
-        if finish is not None and s == 1:
-            def band_finish(rows: np.ndarray, y0: int, y1: int) -> None:
-                apply_marker_factors(rows, factors, y0)
-                finish(rows, y0)
-        fresh = True                                 # frame does not hold this frame's shading
-        if depth is not None:
-            # bands finished as they are composed need no frame: the shader composes them in a
-            # band-sized buffer, and the frame buffer keeps what it held (the flat gel, say)
-            fresh = not self._shader.compose(None if band_finish is not None else frame, bg, depth,
-                                             blur_radius_px(self._blur_fine), self._blur_fine, gaussian_blur,
-                                             band_finish)
-        if fresh and corners is None:
-            return self._bg, False
-        if not fresh:
-            if band_finish is not None:
-                return frame, True
-            self._frame_flat = _STALE
-            apply_marker_factors(frame, factors)
-        elif self._frame_flat is not factors:
-            # the flat gel under these markers, unless frame holds it from the last frame already
-            # (the markers at rest before contact: 0.6 ms of copy and 0.3 of markers saved)
-            np.copyto(frame, bg)
-            apply_marker_factors(frame, factors)
-            self._frame_flat = factors
-        if s > 1:
-            frame = cv2.resize(frame, self.profile.shape[::-1], interpolation=cv2.INTER_AREA)
-        return frame, False
-
-    def _marker_factors(self, corners: np.ndarray, shape: tuple[int, int, int]):
-        """:func:`~gelsim.optics.composite.marker_factors` of ``corners`` (shading-resolution px), reused
-        while the markers do not move (a sequence's frames before contact: about 1 ms each at 960x720)."""
-        last = self._last_markers
-        if last is not None and last[1] == shape and np.array_equal(last[0], corners):
-            return last[2]
-        factors = marker_factors(corners, self.profile.markers.darkness, self._blur_fine, shape)
-        self._last_markers = (corners.copy(), shape, factors)
-        return factors
+        return self._run(depth_mm, markers).copy()
 
     def render(self, depth_mm: np.ndarray | None, markers=None, *, seed: int | np.random.Generator = 0,
                noise: bool = True) -> np.ndarray:
@@ -210,30 +124,86 @@ class Renderer:
         (x, y) px, such an array, or None; ``seed``: picks this frame's noise
         (same seed, same frame); ``noise``: False for a noiseless frame.
         """
-        noisy = noise and self._noise.active
-        out = np.empty(self.profile.shape + (3,), np.uint8)
-        draw = []                                    # the noise's offsets, drawn at the first band
+        return self._run(depth_mm, markers, frame_rng(seed), noise)
 
-        def finish(rows: np.ndarray, y0: int) -> None:
-            # each band goes to 8 bits while its rows are in the cache (a 960x720 frame's float32
-            # copy is 8 MB: the whole-frame pass read it back from memory)
-            if not noisy:
-                to_uint8_rows(rows, out, y0)
-                return
-            if not draw:
-                draw.append(self._noise.offsets(seed))
-            self._noise.apply_rows(rows, draw[0], out, y0)
+    def _run(self, depth_mm, markers, rng=None, noise: bool = True) -> np.ndarray:
+        """The frame through the shading and the stages: uint8 with ``rng`` (:func:`~gelsim.optics.composite.frame_rng`,
+        each stage drawing from it in turn), else the float frame before the readout (the cached background itself, or a work buffer
+        that the next frame overwrites: callers must not modify or keep it).
 
-        frame, finished = self._compose(depth_mm, markers, finish)
-        if finished:
-            return out
-        if noisy:
-            return self._noise.apply(frame, seed)
-        return to_uint8(frame)
+        Where every stage with something to do works on bands of rows (no supersampling), the shader
+        hands each band of a shaded frame to them as soon as its rows are final, while they are in the
+        cache (:meth:`Shader.compose`'s ``finish``): the frame's float32 copy is then never written to
+        memory (8 MB at 960x720)."""
+        final = rng is not None
+        depth = check_depth(depth_mm, self._shape)
+        if depth is not None and self.supersample > 1:
+            depth = upsample(depth, self.supersample, self._fine_shape[:2])
+        inp = FrameInput(depth, markers, self._fine_shape)
+        stages = self.stages if final else [st for st in self.stages if not st.final]
+        active = []
+        for st in stages:
+            state = st.prepare(inp, st.draw(rng, noise) if final else None)
+            if state is not None:
+                active.append((st, state))
+        bg, sigma = self.optics.background_fine, self.optics.blur_sigma_px
+        if depth is not None:
+            if final and all(st.banded for st, _ in active):
+                def band(rows: np.ndarray, y0: int, y1: int) -> None:
+                    for st, state in active:
+                        st.apply(rows, y0, state)
+
+                # bands finished as they are composed need no frame: the shader composes them in a
+                # band-sized buffer, and the frame buffer keeps what it held (the flat gel, say)
+                if self.shader.compose(None, bg, depth, blur_radius_px(sigma), sigma, gaussian_blur, band):
+                    st, state = active[-1]           # the readout
+                    return st.result(state)
+            else:
+                frame = self._work("frame", bg.shape)
+                if self.shader.compose(frame, bg, depth, blur_radius_px(sigma), sigma, gaussian_blur):
+                    self._flat = None                # the frame buffer holds shading now
+                    return self._apply(frame, True, active)
+        return self._apply_flat(active)
+
+    def _apply(self, frame: np.ndarray, owned: bool, active: list) -> np.ndarray:
+        """``frame`` through the ``active`` stages' numpy kernels, whole; ``owned``: whether ``frame`` may be
+        modified in place (else it is first copied to the frame buffer)."""
+        for st, state in active:
+            if st.final:                             # the readout reads the frame, writes its own
+                st.apply(frame, 0, state)
+                return st.result(state)
+            if st.banded and not owned:
+                buf = self._work("frame", frame.shape)
+                np.copyto(buf, frame)
+                frame, owned = buf, True
+            out = st.apply(frame, 0, state)
+            owned = owned or out is not frame
+            frame = out
+        return frame
+
+    def _apply_flat(self, active: list) -> np.ndarray:
+        """:meth:`_apply` of the flat gel, whose frame before the readout is reused while the stages'
+        states are the same objects."""
+        head = [(st, state) for st, state in active if not st.final]
+        tail = [(st, state) for st, state in active if st.final]
+        last = self._flat
+        if not head:
+            frame = self.optics.background
+        elif last is not None and len(last[0]) == len(head) and \
+                all(a is c and b is d for (a, b), (c, d) in zip(last[0], head)):
+            frame = last[1]
+        else:
+            frame = self._apply(self.optics.background_fine, False, head)
+            self._flat = (head, frame)
+        return self._apply(frame, False, tail) if tail else frame
+
+    def _work(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        """A float32 work array kept between frames (:func:`~gelsim.optics.shader.work_array`)."""
+        return work_array(self._bufs, name, shape)
 
     def close(self) -> None:
         """Free the backend's resources (the GL context for pyrender)."""
-        self._shader.close()
+        self.shader.close()
 
 
 def render(depth_mm, markers, profile, *, backend: str = "fast", seed: int = 0) -> np.ndarray:

@@ -1,199 +1,282 @@
-"""Compositing shared by the backends: markers, camera blur, camera noise, quantisation.
+"""The optics of one frame, in order, written once for every backend.
 
-Both backends produce only a shading change over the background; everything
-here is the same for both, so they differ in shading alone.
+A frame is composed in this order, in float32 DN until the readout:
+
+1. **shading** (the backend's :class:`~gelsim.optics.shader.Shader`): the flat gel's background (built
+   once: LED tint, illumination field, vignetting, camera blur) plus the membrane's shading change
+   blurred by the camera within the imprint's box (a calibrated table, or Lambert + Phong from the
+   LEDs), then, with a table, its terms in :class:`~gelsim.optics.lut.TableModel`'s order: the LEDs'
+   soft shadows and the depth and halo terms;
+2. the **stages** of :data:`STAGES`, in order: :class:`Markers` (``x (1 - darkness * blur(coverage))``),
+   :class:`AreaAverage` (supersampling's average back down), :class:`Readout` (camera noise, then
+   8-bit quantisation; always last).
+
+A stage carries its numpy kernel and its torch kernel (both calling the primitives of
+:mod:`gelsim.optics.ops`, where each primitive's two kernels stand side by side), so both backends run
+this one list: :class:`gelsim.optics.Renderer` one frame at a time in numpy, band by band while the
+rows are in the cache where every stage allows it, and
+:class:`gelsim.optics.torch_backend.BatchRenderer` ``B`` frames at once on a device. Adding a stage
+(a nuisance of the image, say) is writing a :class:`Stage` subclass with both kernels and inserting
+it into :data:`STAGES`; both backends then run it in its place, and its random draws (if any) come
+from each frame's seed in the list's order.
+
+The inputs every backend reads are public and built once per renderer (:class:`Optics`: the
+resolutions, light maps, background, camera blur, noise bank), so that no backend reads another's
+state.
 """
 from __future__ import annotations
 
-import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from ..errors import GelsimError
-from .kernels import add_noise_u8, add_shot_noise_u8, multiply_patches_rows, quad_coverage_strip
+from .field import LightMaps, background_float, light_maps
+from .ops.filters import gaussian_blur
+from .ops.markers import apply_marker_factors, fine_px, marker_corners, marker_factor_torch, marker_factors
+from .ops.readout import NoiseBank, readout_torch, to_uint8_rows
+from .ops.resample import area_mean, area_mean_torch
 
-def blur_radius_px(sigma_px: float) -> int:
-    """Half-size of the Gaussian kernel used for ``sigma_px`` (3 sigma holds 99.7% of its weight)."""
-    return int(math.ceil(3.0 * sigma_px)) if sigma_px > 0 else 0
-
-
-def gaussian_blur(img: np.ndarray, sigma_px: float, dst: np.ndarray | None = None) -> np.ndarray:
-    """Camera blur; identity for ``sigma_px == 0``. Borders replicate (the gel continues past the image).
-    ``dst``: an array of ``img``'s shape and type to write into (reused buffers avoid page faults)."""
-    if sigma_px <= 0:
-        return img
-    k = 2 * blur_radius_px(sigma_px) + 1
-    return cv2.GaussianBlur(img, (k, k), sigma_px, dst, borderType=cv2.BORDER_REPLICATE)
+__all__ = ["Optics", "FrameInput", "BatchInput", "Stage", "Markers", "AreaAverage", "Readout", "STAGES",
+           "check_depth", "frame_rng", "marker_corners"]
 
 
-def marker_corners(markers) -> np.ndarray | None:
-    """Marker corners as float32 ``(N, 4, 2)`` px from a Markers-like object, an array, or None."""
-    if markers is None:
+@dataclass(frozen=True)
+class Optics:
+    """The optics' inputs for one profile, built once per renderer (:meth:`build`), read by every backend.
+
+    ``profile``: the sensor profile (output resolution ``(H, W)``); ``supersample``: ``s``, the shading
+    is done at ``s`` times the resolution (``fine``: the profile there) and averaged back down;
+    ``maps``: the LEDs' :func:`~gelsim.optics.field.light_maps` at the fine resolution;
+    ``blur_sigma_px``: the camera blur's sigma in fine pixels; ``background_fine`` and ``background``:
+    the flat gel without markers or noise, float32 ``(sH, sW, 3)`` and ``(H, W, 3)`` DN (camera blur
+    applied); ``noise``: the camera noise's bank (:class:`~gelsim.optics.ops.readout.NoiseBank`)."""
+    profile: object
+    fine: object
+    supersample: int
+    maps: list[LightMaps]
+    blur_sigma_px: float
+    background_fine: np.ndarray
+    background: np.ndarray
+    noise: NoiseBank
+
+    @classmethod
+    def build(cls, profile, supersample: int = 1, seed: int = 0) -> "Optics":
+        """The inputs of ``profile`` at supersampling ``supersample``; ``seed`` fixes the background's random
+        illumination field and the noise bank."""
+        h, w = profile.shape
+        s = int(supersample)
+        fine = profile if s == 1 else profile.with_resolution(w * s, h * s)
+        maps = light_maps(fine)
+        blur = profile.camera.blur_sigma_px * s
+        bg = gaussian_blur(background_float(fine, maps, seed), blur)
+        out = bg if s == 1 else cv2.resize(bg, (w, h), interpolation=cv2.INTER_AREA)
+        n = profile.noise
+        return cls(profile, fine, s, maps, blur, bg, out, NoiseBank(profile.shape, n.read_sigma_dn, n.shot_gain, seed))
+
+
+def check_depth(depth_mm, shape: tuple[int, int]) -> np.ndarray | None:
+    """Validate an imprint: float32 C-contiguous ``(H, W)`` mm, finite, >= 0 (tiny negatives clipped)."""
+    if depth_mm is None:
         return None
-    corners = getattr(markers, "corners_px", markers)
-    corners = np.asarray(corners, dtype=np.float32)
-    if corners.size == 0:
+    d = np.asarray(depth_mm)
+    if d.shape != tuple(shape):
+        raise GelsimError(f"depth map has shape {d.shape} but the profile's image is {tuple(shape)} (H, W); "
+                          "compute the imprint at the profile's resolution or use profile.with_resolution")
+    if not np.issubdtype(d.dtype, np.number):
+        raise GelsimError(f"depth map has dtype {d.dtype}; give float32 millimetres")
+    d = np.ascontiguousarray(d, dtype=np.float32)
+    lo, hi = float(d.min()), float(d.max())
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        raise GelsimError("depth map contains NaN or infinity; check the imprint computation")
+    # float error of an imprint model may leave -1e-7 mm; a real negative depth is a sign error
+    if lo < -1e-3:
+        raise GelsimError(f"depth map has negative values (min {lo:.4g} mm); the imprint is the depth "
+                          "pushed into the gel, >= 0")
+    if lo < 0:
+        d = np.maximum(d, 0.0)
+    return d
+
+
+def frame_rng(seed: int | np.random.Generator):
+    """A frame's random generator for the stages' draws, made on first use: a callable returning the
+    Generator (``seed`` itself if it is one, else ``np.random.default_rng(seed)``). A fresh Generator
+    costs about 30 us, as much as a tenth of a small flat frame: a frame whose stages draw nothing
+    makes none."""
+    made = [seed] if isinstance(seed, np.random.Generator) else []
+
+    def rng() -> np.random.Generator:
+        if not made:
+            made.append(np.random.default_rng(seed))
+        return made[0]
+
+    return rng
+
+
+@dataclass
+class FrameInput:
+    """One frame's inputs to the numpy stages: ``depth`` the imprint at the fine resolution (float32 mm,
+    validated) or None; ``markers`` as given to :meth:`Renderer.render` (output pixels); ``shape`` the
+    fine frame's ``(sH, sW, 3)``."""
+    depth: np.ndarray | None
+    markers: object
+    shape: tuple[int, int, int]
+
+
+@dataclass
+class BatchInput:
+    """``B`` frames' inputs to the torch stages: ``depth`` ``(B, sH, sW)`` mm at the fine resolution and
+    ``corners`` ``(B, N, 4, 2)`` output pixels (None without markers), tensors on the device."""
+    depth: object
+    corners: object
+
+
+class Stage(ABC):
+    """One step of the optics after the shading, with its numpy and its torch kernel (see the module
+    docstring). Built once per renderer from its :class:`Optics`; may keep caches between frames.
+
+    ``banded``: the numpy kernel works on any band of a frame's rows alone, in place (so the renderer
+    can run it while the band is in the cache); False: it needs the whole frame and returns a new one.
+    ``final``: the readout, last in :data:`STAGES`; it turns the float frame into the camera's uint8
+    frame (its :meth:`apply` reads the rows and writes its own output, :meth:`result`), and is skipped
+    for an unquantised frame (:meth:`Renderer.render_float`, :meth:`BatchRenderer.compose`)."""
+
+    name: str = ""
+    banded: bool = True
+    final: bool = False
+
+    def __init__(self, optics: Optics):
+        self.optics = optics
+
+    def draw(self, rng, noise: bool):
+        """This stage's random draws for one frame from the frame's generator ``rng()`` (:func:`frame_rng`;
+        the stages draw in :data:`STAGES`' order; ``noise`` False: a noiseless frame). Default: none (None)."""
         return None
-    if corners.ndim != 3 or corners.shape[1:] != (4, 2):
-        raise GelsimError(f"marker corners have shape {corners.shape}; give (N, 4, 2) pixel coordinates (x, y)")
-    if not np.all(np.isfinite(corners)):
-        raise GelsimError("marker corners contain NaN or infinity; check the marker displacement")
-    return corners
+
+    @abstractmethod
+    def prepare(self, frame: FrameInput, draw):
+        """numpy: this frame's state for :meth:`apply` (``draw``: :meth:`draw`'s), or None where the stage
+        leaves the frame as it is. A stage returns the same state object for the same inputs where it
+        can (the renderer then reuses a flat gel's frame)."""
+
+    @abstractmethod
+    def apply(self, rows: np.ndarray, y0: int, state) -> np.ndarray:
+        """numpy kernel: the frame's rows from ``y0`` (float32 ``(n, W, 3)`` DN; the whole frame for a stage
+        that is not ``banded``) after this stage, in place for a ``banded`` stage."""
+
+    @abstractmethod
+    def apply_torch(self, frames, batch: BatchInput, draws: list):
+        """torch kernel: ``frames`` ``(B, 3, H, W)`` DN after this stage (``draws``: each frame's
+        :meth:`draw`, or None)."""
+
+    def result(self, state) -> np.ndarray:
+        """The ``final`` stage's output once every row of the frame went through :meth:`apply`."""
+        raise NotImplementedError(f"{self.name} is not the final stage")
 
 
-def coverage_strip(corners: np.ndarray, pad_px: int) -> tuple[np.ndarray, np.ndarray]:
-    """Anti-aliased coverage of convex quadrilateral markers, one patch per marker, side by side.
+class Markers(Stage):
+    """The frame times ``1 - darkness * blur(coverage)`` of the profile's markers
+    (:mod:`gelsim.optics.ops.markers`), at the shading resolution. A frame's factors are reused while its
+    markers do not move (a sequence's frames before contact: about 1 ms each at 960x720)."""
 
-    ``corners``: float32 ``(N, 4, 2)`` (x, y) px, pixel centres at integers. Returns
-    ``(origin, strip)``: int64 ``(N, 2)`` (x, y) of each patch's top-left pixel and float32
-    ``(P, N P)`` coverage in 0-1, patch ``i`` in columns ``i P:(i + 1) P`` (the layout
-    :func:`marker_factors` blurs in one call), each patch ``pad_px`` wider than its marker on every
-    side. Coverage is the product over the 4 edges of ``clip(0.5 + signed distance inside, 0, 1)``:
-    the exact pixel-box coverage of an axis-aligned rectangle at least 1 px wide, and within a few
-    percent of it at the corners of a sheared one. (cv2.fillPoly with LINE_AA was tried first: its
-    squares came out 1.2 px too wide and moved in whole pixels.)
-    """
-    n = corners.shape[0]
-    lo = np.floor(corners.min(axis=1)).astype(np.int64) - pad_px
-    size = int(np.ceil(corners.max(axis=1) - corners.min(axis=1)).max()) + 2 * pad_px + 2
-    v0 = corners
-    v1 = np.roll(corners, -1, axis=1)
-    e = v1 - v0                                                           # (N, 4, 2)
-    # orientation of each quad (shoelace sign) so that the normals point inwards
-    area2 = (v0[..., 0] * v1[..., 1] - v1[..., 0] * v0[..., 1]).sum(axis=1)
-    sign = np.where(area2 >= 0, 1.0, -1.0).astype(np.float32)[:, None]
-    length = np.maximum(np.linalg.norm(e, axis=-1), 1e-6)
-    nx, ny = -e[..., 1] * sign / length, e[..., 0] * sign / length       # (N, 4)
-    c = -(nx * v0[..., 0] + ny * v0[..., 1])
-    strip = np.empty((size, n * size), np.float32)
-    # per pixel: the product over the edges of clip(nx x + ny y + c + 0.5, 0, 1), in one pass
-    quad_coverage_strip(lo, np.ascontiguousarray(nx, np.float32), np.ascontiguousarray(ny, np.float32),
-                        np.ascontiguousarray(c + np.float32(0.5), np.float32), strip)
-    return lo, strip
+    name = "markers"
 
+    def __init__(self, optics: Optics):
+        super().__init__(optics)
+        mk = optics.profile.markers
+        self.enabled = bool(mk.enabled)
+        self.darkness = float(mk.darkness)
+        self._last = None                    # (corners, shape, factors) of the last frame
 
-def darken_markers(frame: np.ndarray, corners: np.ndarray, darkness: float, blur_sigma_px: float) -> None:
-    """Multiply ``frame`` (float32 ``(H, W, 3)``, in place) by ``1 - darkness * coverage`` of the markers.
+    def prepare(self, frame: FrameInput, draw):
+        corners = marker_corners(frame.markers) if self.enabled else None
+        if corners is None:
+            return None
+        if self.optics.supersample > 1:
+            corners = fine_px(corners, self.optics.supersample)
+        last = self._last
+        if last is not None and last[1] == frame.shape and np.array_equal(last[0], corners):
+            return last[2]
+        factors = marker_factors(corners, self.darkness, self.optics.blur_sigma_px, frame.shape)
+        self._last = (corners.copy(), frame.shape, factors)
+        return factors
 
-    Coverage (:func:`coverage_strip`) is blurred like the rest of the image and
-    applied per marker patch, so the cost grows with the markers, not the frame.
-    """
-    apply_marker_factors(frame, marker_factors(corners, darkness, blur_sigma_px, frame.shape))
+    def apply(self, rows, y0, state):
+        apply_marker_factors(rows, state, y0)
+        return rows
 
-
-def marker_factors(corners: np.ndarray, darkness: float, blur_sigma_px: float,
-                   shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray] | None:
-    """The factors :func:`darken_markers` multiplies a frame of ``shape`` (H, W, C) by: ``(origin, factor)``
-    with int64 ``(N, 2)`` (x, y) of each marker's patch's top-left pixel and float32 ``(P, N P)``
-    ``1 - darkness * blur(coverage)``, the ``P x P`` patches side by side, the same for every channel;
-    None if no marker's blurred patch reaches the frame. Depends on nothing else, so a frame whose
-    markers did not move can reuse it."""
-    h, w = shape[:2]
-    radius = blur_radius_px(blur_sigma_px)
-    inside = ((corners.max(axis=1) >= -radius - 1) & (corners.min(axis=1) <= np.array([w, h]) + radius)).all(axis=1)
-    corners = corners[inside]
-    if corners.shape[0] == 0:
-        return None
-    # side by side in one strip: each patch has >= radius zero columns at both ends,
-    # so the blur does not mix neighbouring patches
-    lo, strip = coverage_strip(corners, radius + 1)
-    if radius:
-        strip = gaussian_blur(strip, blur_sigma_px)
-    strip = cv2.addWeighted(strip, -darkness, strip, 0.0, 1.0)        # 1 - darkness * coverage
-    return lo, strip
+    def apply_torch(self, frames, batch, draws):
+        if not self.enabled or batch.corners is None:
+            return frames
+        s = self.optics.supersample
+        corners = fine_px(batch.corners, s) if s > 1 else batch.corners
+        return frames * marker_factor_torch(corners, tuple(frames.shape[-2:]), self.darkness,
+                                            self.optics.blur_sigma_px)[:, None]
 
 
-def apply_marker_factors(frame: np.ndarray, factors: tuple[np.ndarray, np.ndarray] | None, y0: int = 0) -> None:
-    """Multiply ``frame`` (float32 C-contiguous ``(H, W, C)``, in place) by :func:`marker_factors`' patches,
-    in marker order (one pass of :func:`~gelsim.optics.kernels.multiply_patches_rows`: a Python loop of
-    OpenCV multiplies over about 100 patches took 0.4 ms per frame). ``y0``: the frame row (px) that
-    ``frame``'s first row is, for a band of a frame (the same values there as the whole frame's pass)."""
-    if factors is None:
-        return
-    lo, factor = factors
-    multiply_patches_rows(frame, lo, factor, y0)
+class AreaAverage(Stage):
+    """Supersampling's last step: the frame averaged over ``s x s`` blocks, back to the profile's
+    resolution (:func:`~gelsim.optics.ops.resample.area_mean`); nothing without supersampling."""
+
+    name = "area average"
+    banded = False
+
+    def prepare(self, frame, draw):
+        return self if self.optics.supersample > 1 else None
+
+    def apply(self, rows, y0, state):
+        return area_mean(rows, self.optics.supersample)
+
+    def apply_torch(self, frames, batch, draws):
+        return area_mean_torch(frames, self.optics.supersample)
 
 
-def to_uint8_rows(rows: np.ndarray, out: np.ndarray, y0: int) -> None:
-    """:func:`to_uint8` of a band of a frame: ``rows`` float32 ``(n, W, 3)`` DN, the frame's rows ``y0:y0 + n``,
-    into the same rows of ``out`` (uint8 ``(H, W, 3)``)."""
-    cv2.add(rows, (0.0, 0.0, 0.0, 0.0), out[y0:y0 + rows.shape[0]], dtype=cv2.CV_8U)
+@dataclass
+class _Readout:
+    offsets: tuple | None        # the noise's draw, or None for a noiseless frame
+    out: np.ndarray              # uint8 (H, W, 3), written row by row
 
 
-def to_uint8(frame: np.ndarray) -> np.ndarray:
-    """Round and saturate float32 DN to uint8 (no wrap-around)."""
-    if frame.ndim == 3 and frame.shape[2] <= 4:
-        # cv2 rounds to nearest and saturates when converting to 8 bits
-        return cv2.add(frame, (0.0, 0.0, 0.0, 0.0), dtype=cv2.CV_8U)
-    return np.clip(np.rint(frame), 0, 255).astype(np.uint8)
+class Readout(Stage):
+    """The camera's readout: noise (:class:`~gelsim.optics.ops.readout.NoiseBank`; its field drawn from each
+    frame's seed) and 8-bit quantisation. Numpy: one fused pass per band into the uint8 frame."""
 
+    name = "readout"
+    final = True
 
-class NoiseBank:
-    """Camera noise from a bank of pre-drawn standard-normal frames.
+    def __init__(self, optics: Optics):
+        super().__init__(optics)
+        self._shape = optics.profile.shape + (3,)
+        self._banks: dict = {}                # the noise bank per torch device
 
-    Drawing 960x720x3 normals costs about 6 ms per frame; instead ``frames``
-    frames are drawn once from the renderer's seed, each ``pad_px`` larger than
-    the image, and a frame's noise is one of them at an offset chosen by the
-    frame's seed (``frames * (pad_px + 1)^2`` distinct patterns). The standard
-    normal is scaled per pixel by ``sqrt(read_sigma^2 + shot_gain * signal)``.
-    """
+    def draw(self, rng, noise):
+        n = self.optics.noise
+        return n.offsets(rng()) if noise and n.active else None
 
-    def __init__(self, shape: tuple[int, int], read_sigma_dn: float, shot_gain: float, seed: int,
-                 frames: int = 4, pad_px: int = 48):
-        h, w = shape
-        self.shape = shape
-        self.read_var = float(read_sigma_dn) ** 2
-        self.shot_gain = float(shot_gain)
-        self.pad = pad_px
-        rng = np.random.default_rng([seed, 0x401])
-        self.bank = [rng.standard_normal((h + pad_px, w + pad_px, 3), dtype=np.float32) for _ in range(frames)]
+    def prepare(self, frame, draw):
+        return _Readout(draw, np.empty(self._shape, np.uint8))
 
-    @property
-    def active(self) -> bool:
-        return self.read_var > 0 or self.shot_gain > 0
-
-    def offsets(self, seed: int | np.random.Generator) -> tuple[int, int, int]:
-        """The draw for ``seed``: (bank frame, row offset, column offset) of its noise field (a Generator
-        advances by this draw, as a frame of a sequence does)."""
-        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-        k = int(rng.integers(len(self.bank)))
-        oy, ox = (int(v) for v in rng.integers(self.pad + 1, size=2))
-        return k, oy, ox
-
-    def pick(self, seed: int | np.random.Generator) -> np.ndarray:
-        """The standard-normal field for ``seed``: float32 ``(H, W, 3)`` view."""
-        k, oy, ox = self.offsets(seed)
-        h, w = self.shape
-        return self.bank[k][oy:oy + h, ox:ox + w]
-
-    def apply(self, frame: np.ndarray, seed: int | np.random.Generator) -> np.ndarray:
-        """``frame`` (float32 ``(H, W, 3)`` DN, not modified) plus noise, as a new uint8 array.
-
-        One fused pass (:mod:`gelsim.optics.kernels`) reads the frame and the noise once: the same
-        values as OpenCV's ``addWeighted`` into 8 bits (constant sigma) or its five passes (shot
-        noise), in a third (constant sigma) to a fifth (shot noise) of their time."""
-        h, w = self.shape
-        frame = np.ascontiguousarray(frame, dtype=np.float32)
-        if frame.shape != (h, w, 3):
-            raise GelsimError(f"frame has shape {frame.shape}; the noise bank is for {(h, w, 3)}")
-        out = np.empty((h, w, 3), np.uint8)
-        self.apply_rows(frame, self.offsets(seed), out, 0)
-        return out
-
-    def apply_rows(self, rows: np.ndarray, offsets: tuple[int, int, int], out: np.ndarray, y0: int) -> None:
-        """:meth:`apply` on a band of a frame with the draw ``offsets`` (:meth:`offsets`): ``rows`` float32
-        C-contiguous ``(n, W, 3)`` DN, the frame's rows ``y0:y0 + n``; ``out`` uint8 C-contiguous
-        ``(H, W, 3)``, those rows written. Each pixel's value depends on that pixel alone, so a frame
-        finished band by band, while its rows are in the cache, equals the whole frame's :meth:`apply`."""
-        k, oy, ox = offsets
-        h, w = self.shape
-        n = rows.shape[0]
-        bank = self.bank[k]
-        flat, bank2 = rows.reshape(n, w * 3), bank.reshape(bank.shape[0], -1)
-        dst = out.reshape(h, w * 3)[y0:y0 + n]
-        if self.shot_gain == 0:
-            # the scalars are float32, as OpenCV's vector code uses them
-            add_noise_u8(flat, bank2, oy + y0, 3 * ox, np.float32(math.sqrt(self.read_var)), dst)
+    def apply(self, rows, y0, state):
+        if state.offsets is None:
+            to_uint8_rows(rows, state.out, y0)
         else:
-            add_shot_noise_u8(flat, bank2, oy + y0, 3 * ox, np.float32(self.shot_gain), np.float32(self.read_var), dst)
+            self.optics.noise.apply_rows(rows, state.offsets, state.out, y0)
+        return rows
+
+    def result(self, state) -> np.ndarray:
+        """The uint8 ``(H, W, 3)`` frame."""
+        return state.out
+
+    def apply_torch(self, frames, batch, draws):
+        noise = self.optics.noise
+        if not noise.active:
+            return readout_torch(frames, None, noise, draws)
+        if frames.device not in self._banks:
+            self._banks[frames.device] = noise.to_torch(frames.device)
+        return readout_torch(frames, self._banks[frames.device], noise, draws)
+
+
+#: The stages after the shading, in order (the readout last).
+STAGES: tuple[type[Stage], ...] = (Markers, AreaAverage, Readout)

@@ -24,8 +24,8 @@ import numpy as np
 
 from ..compat import gl_color, gl_unavailable_message, import_pyrender
 from ..errors import GelsimError
-from .fast import imprint_roi
 from .field import LightMaps, flat_shading_rgb, led_position_mm, vignetting_map
+from .ops.box import imprint_roi
 from .shader import Shader
 
 #: Most vertices along one side of the gel mesh: 320 x 240 at 960x720 rendered in

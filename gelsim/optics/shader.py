@@ -1,7 +1,7 @@
 """The contract between :class:`gelsim.optics.Renderer` and its shading backends.
 
 A backend computes only the *shading change* of the deformed membrane over the flat gel, in image DN;
-the Renderer composites the background, markers, blur and noise around it. A backend is a subclass of
+the Renderer composes the background, markers, blur and noise around it (:mod:`gelsim.optics.composite`). A backend is a subclass of
 :class:`Shader`, built as ``cls(profile, maps)`` (the profile at the resolution being shaded, its
 :func:`~gelsim.optics.field.light_maps`), and implements:
 
@@ -77,7 +77,8 @@ class Shader(ABC):
         untouched, for a flat gel. ``blur(img, sigma_px, dst)`` is the camera blur. ``finish(rows, y0, y1)``
         (optional, only if True is returned): called once per band of frame rows ``y0:y1`` whose values
         are final, ``rows`` float32 ``(y1 - y0, W, 3)`` DN holding them (writable), in row order, the bands
-        covering the frame (the renderer darkens the markers and adds the noise there). With ``finish``,
+        covering the frame (the renderer runs its stages there: markers, noise, quantisation;
+        :mod:`gelsim.optics.composite`). With ``finish``,
         ``frame`` may be None: the rows are then written to work buffers of the shader's own and exist
         only as handed to ``finish``. Default: the :meth:`parts`, each blurred unless it says it is,
         added to the background, then one ``finish`` of the whole frame."""

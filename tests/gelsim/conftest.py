@@ -15,3 +15,14 @@ def vitac():
 def vitac320(vitac):
     """The ViTac sensor at 320 x 240 px (same field of view)."""
     return vitac.with_resolution(320)
+
+
+@pytest.fixture(scope="module")
+def torch_one_thread():
+    """torch on one CPU thread for a module (the device tests' small tensors on a shared 2-core machine: more
+    threads spin against each other, 10x slower under load)."""
+    torch = pytest.importorskip("torch")
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)

@@ -46,3 +46,27 @@ def test_scripts_keep_the_error_contract(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.splitlines() == ["bench_convergence.py: error: --resolution '12' is malformed; give WIDTHxHEIGHT, "
                                         "e.g. 320x240"]
+
+
+def test_argparse_errors_are_one_line_and_status_2(capsys):
+    """A bad int, a bad choice, a missing required option or an unknown command: one line naming it and
+    where the help is, no usage block (#42)."""
+    import pytest
+
+    from gelsim.cli import main as gelsim_main
+    from stam.cli import main as stam_main
+
+    cases = [(gelsim_main, ["render", "--fabric", "abc", "--out", "x.png"], "gelsim render: error: argument --fabric: "
+              "invalid int value: 'abc'; see `gelsim render --help`"),
+             (gelsim_main, ["render", "--fabric", "21"], "gelsim render: error: the following arguments are required: "
+              "--out; see `gelsim render --help`"),
+             (gelsim_main, ["press", "--fidelity", "turbo", "--force-n", "1"], "gelsim press: error: argument "
+              "--fidelity: invalid choice: 'turbo'"),
+             (gelsim_main, ["rendr"], "gelsim: error: argument COMMAND: invalid choice: 'rendr'"),
+             (stam_main, ["train", "--data", "d"], "stam train: error: the following arguments are required: --out; "
+              "see `stam train --help`")]
+    for main, argv, start in cases:
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.count("\n") == 1 and err.startswith(start), err

@@ -81,3 +81,17 @@ def test_bad_input_exits_2_with_one_line(capsys, argv):
     assert main(["press", *argv, "--resolution-px", "160"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("gelsim: error:") and "\n" not in err
+
+
+def test_an_overflowing_force_is_a_bottomed_press_said_on_stderr(capsys):
+    """`--force-n 1e39` overflowed float32 with a RuntimeWarning and said nothing (#42)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rc = main(["press", "--indenter", "sphere", "--diameter-mm", "4", "--force-n", "1e39", "--fidelity", "fast",
+                   "--resolution-px", "320", "--json"])
+    cap = capsys.readouterr()
+    rep = json.loads(cap.out)
+    assert rc == 0 and rep["bottomed_out"] and 0 < rep["gel_force_n"] < 1e3
+    assert cap.err.startswith("gelsim press: warning: the gel bottomed out") and cap.err.count("\n") == 1

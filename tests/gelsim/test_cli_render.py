@@ -97,6 +97,19 @@ def test_render_fabric_by_force(tmp_path, capsys, small_profile):
     assert _read(out).shape == (240, 320, 3)
 
 
+def test_a_force_the_gel_cannot_carry_is_said_on_stderr_and_the_json_stays_valid(tmp_path, capsys, small_profile):
+    """`--force-n 1e20 --json` printed a NaN force (not JSON) and exited 0 silently (#42)."""
+    code, stdout, err = _run(capsys, "--out", tmp_path / "x.png", "--fabric", 21, "--force-n", 1e20,
+                             "--profile", small_profile, "--json")
+    assert code == 0
+    info = json.loads(stdout, parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
+    assert info["imprint"]["bottomed_out"] and 0 < info["imprint"]["normal_force_n"] < 1e3
+    assert err.count("\n") == 1 and err.startswith("gelsim render: warning: the gel bottomed out")
+    assert "of the 1e+20 N asked" in err
+    code, _, err = _run(capsys, "--out", tmp_path / "y.png", "--fabric", 21, "--force-n", 1, "--profile", small_profile)
+    assert code == 0 and err == ""                                       # within range: nothing said
+
+
 @pytest.mark.gl
 def test_render_pyrender_backend(tmp_path, capsys, small_profile):
     from gelsim.optics import available_backends

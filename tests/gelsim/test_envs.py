@@ -14,9 +14,47 @@ from gelsim.envs import GraspEnv  # noqa: E402
 from gelsim.errors import GelsimError  # noqa: E402
 
 
-def test_env_passes_gymnasiums_checker():
-    env = GraspEnv(resolution=(32, 24), max_steps=5)
-    check_env(env, skip_render_check=True)
+def test_registered_env_passes_gymnasiums_checker_without_a_warning():
+    """`gym.make("gelsim/Grasp-v0")` after `import gelsim.envs`; check_env with its render check (#42)."""
+    import warnings
+
+    env = gym.make("gelsim/Grasp-v0", resolution=(32, 24), max_steps=5)
+    assert env.spec.id == "gelsim/Grasp-v0" and env.metadata["render_modes"] == ["rgb_array"]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    assert [str(w.message) for w in caught] == []
+
+
+def test_rgb_array_renders_both_fingers_side_by_side():
+    env = gym.make("gelsim/Grasp-v0", resolution=(32, 24), max_steps=5, render_mode="rgb_array")
+    obs, _ = env.reset(seed=0)
+    img = env.render()
+    assert img.shape == (24, 64, 3) and img.dtype == np.uint8
+    np.testing.assert_array_equal(img[:, :32], obs["tactile_left"])
+    np.testing.assert_array_equal(img[:, 32:], obs["tactile_right"])
+    plain = gym.make("gelsim/Grasp-v0", resolution=(32, 24))
+    plain.reset(seed=0)
+    assert plain.render() is None                                                # no render_mode: nothing
+    with pytest.raises(GelsimError, match="render_mode 'human' is not supported"):
+        GraspEnv(render_mode="human")
+
+
+def test_make_vec_steps_a_batch():
+    envs = gym.make_vec("gelsim/Grasp-v0", num_envs=2, resolution=(32, 24), max_steps=3)
+    obs, _ = envs.reset(seed=0)
+    assert obs["tactile_left"].shape == (2, 24, 32, 3) and obs["state"].shape == (2, 4)
+    obs, reward, terminated, truncated, _ = envs.step(np.zeros((2, 2), np.float32))
+    assert reward.shape == (2,) and terminated.shape == (2,)
+    envs.close()
+
+
+def test_the_registry_table_registers_every_id_once():
+    import gelsim.envs as envs
+
+    assert "gelsim/Grasp-v0" in envs.ENVS and envs.register_envs() == list(envs.ENVS)   # a second call: no error
+    for env_id in envs.ENVS:
+        assert gym.spec(env_id).entry_point == envs.ENVS[env_id]["entry_point"]
 
 
 def test_scripted_grasp_lifts_and_feels_the_object():

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -26,7 +27,8 @@ from gelsim.motion import ForceRanges, Motion, load_motion_ranges, sample_motion
 from gelsim.optics import Renderer
 from gelsim.params import build
 from gelsim.sensor import GelSpec, ImageSpec, MarkerSpec, load_profile
-from gelsim.sequence import PHYSICS_MM_PER_PX, SequenceOutput, render_sequence
+from gelsim.sequence import PHYSICS_MM_PER_PX, render_sequence
+from gelsim.sinks import KeepFrames, drain
 from gelsim.texture import texture_budget
 
 FAST = get_fidelity("fast")
@@ -409,10 +411,10 @@ def test_forces_at_the_motion_range_edges(fabric_id):
     labels = []
     for action, force in zip(("slip", "press"), _force_edges()):
         m = base_motion(action, peak_force_n=force)
-        out = SequenceOutput({}, {})
-        frames = list(render_sequence(fabric, m, TEX, BAL, seed=2, out=out))
+        keep = KeepFrames()
+        lab, _ = drain(render_sequence(fabric, m, TEX, BAL, seed=2), [keep])
+        frames = keep.frames
         assert all(f.dtype == np.uint8 and f.shape == (120, 160, 3) for f in frames)
-        lab = out.labels
         pressing = lab["in_contact"] & (lab["normal_force_n"] > 0)
         assert pressing.any() and (lab["contact_area_mm2"][pressing] > 0).all()
         for k, v in lab.items():
@@ -446,8 +448,9 @@ def test_sequence_extremes(fabric_id, motion_kw):
     profile = load_profile("vitac").with_resolution(64, 48)
     fabric = load_catalog()[fabric_id]
     m = base_motion(**motion_kw)
-    out = SequenceOutput({}, {})
-    frames = list(render_sequence(fabric, m, profile, FAST, seed=2, out=out))
+    keep = KeepFrames()
+    labels, _ = drain(render_sequence(fabric, m, profile, FAST, seed=2), [keep])
+    frames, out = keep.frames, SimpleNamespace(labels=labels)
     assert len(frames) == m.num_frames
     assert all(f.dtype == np.uint8 and f.shape == (48, 64, 3) for f in frames)
     touched = out.labels["contact_area_mm2"] > 0
@@ -587,6 +590,5 @@ def test_textured_contact_on_the_frames_edge():
     preset); every frame now renders."""
     profile = load_profile("vitac").with_resolution(320, 240)
     motion = sample_motion("twist", 88805309, frames=(34, 34), precontact=None)
-    out = SequenceOutput({}, {})
-    frames = list(render_sequence(load_catalog()[9], motion, profile, BAL, seed=88805309, out=out))
+    frames = [r.frame for r in render_sequence(load_catalog()[9], motion, profile, BAL, seed=88805309)]
     assert len(frames) == 34 and all(np.isfinite(f).all() for f in frames)

@@ -1,4 +1,4 @@
-"""gelsim.fidelity: the levels load from assets/fidelity.toml, fastest first."""
+"""gelsim.fidelity: the levels load from gelsim/assets/fidelity.toml, fastest first."""
 import pytest
 
 from gelsim.errors import GelsimError
@@ -37,7 +37,7 @@ def test_estimate_is_linear_in_pixels_through_both_measured_sizes():
 
 
 def test_every_level_measures_both_sizes():
-    """Each level in assets/fidelity.toml states both measured figures (no silent default), the larger
+    """Each level in gelsim/assets/fidelity.toml states both measured figures (no silent default), the larger
     frame costing more."""
     for f in fidelity_levels().values():
         assert f.est_ms_per_frame_960 > f.est_ms_per_frame_vga > 0 and 0.1 <= f.est_worker_efficiency <= 1.0

@@ -4,7 +4,7 @@ Theory (gelsim/gel/johnson.py): a rigid wave z = h cos(2 pi x / L) (1-D) or
 h cos(2 pi x / L) cos(2 pi y / L) (2-D) on the gel at mean pressure p comes into complete contact
 at p* = pi E* h / L (1-D) or sqrt(2) pi E* h / L (2-D); below it the 1-D contact covers
 (2/pi) asin(sqrt(p/p*)) of the surface and the gel keeps s (2 - s) of the wave's fundamental,
-s = p / p*; the 2-D values are the exact periodic solutions in assets/johnson.toml, checked here
+s = p / p*; the 2-D values are the exact periodic solutions in gelsim/assets/johnson.toml, checked here
 against the two limits Johnson, Greenwood and Higginson give (complete contact at p*, a Hertz
 contact per crown at light load).
 
@@ -62,7 +62,7 @@ def test_closed_forms_match_the_exact_periodic_solution(s):
 
 
 def test_tables_reproduce_from_the_solver():
-    # A few rows of assets/johnson.toml, refitted on a coarser grid: the file is what the tool writes.
+    # A few rows of gelsim/assets/johnson.toml, refitted on a coarser grid: the file is what the tool writes.
     tabs = johnson.map_tables()
     for kind, n in (("1d", 512), ("2d", 64)):
         t = tabs[kind]
@@ -113,7 +113,7 @@ def test_wave_follows_johnson(level, kind, wavelength, s):
 # and the reference do (its texture scale is capped at the thickness, where the crown envelope and the
 # layer's response overlap); and the fast level, at half resolution, works a 0.2 mm 2-D wave on 12 px
 # per period: at s = 0.11 it keeps 0.41 of it against theory's 0.34. Strict: a case that starts to
-# pass is news, and the count in the README changes with it.
+# pass is news, and the count in docs/physics.md changes with it.
 KNOWN = {("1d", 2.0, 0.2, "balanced"): "two-scale model at L = gel thickness, light load",
          ("1d", 2.0, 0.05, "fast"): "two-scale model at L = gel thickness, light load",
          ("2d", 0.2, 0.2, "fast"): "fast level: 12 px per period of a 0.2 mm wave at half resolution"}

@@ -180,3 +180,87 @@ def test_bad_input_is_one_clear_error(pressed_ball):
     spec = mujoco.MjSpec()
     with pytest.raises(GelsimError, match="no body named 'finger'"):
         attach(spec, "finger", "pad")
+
+
+def _pad_scene(half_mm: tuple[float, float], kind=mujoco.mjtGeom.mjGEOM_BOX):
+    spec = mujoco.MjSpec()
+    size = [half_mm[0] * MM, half_mm[1] * MM, 0.001]
+    spec.worldbody.add_geom(name="pad", type=kind, size=size)
+    ball = spec.worldbody.add_body(name="ball", pos=[0, 0, 0.02])
+    ball.add_freejoint()
+    ball.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.005], mass=0.01)
+    m = spec.compile()
+    return m, mujoco.MjData(m)
+
+
+def test_a_pad_that_does_not_match_the_field_is_refused_in_one_line():
+    """A 5x5 mm pad and a 60x60 mm pad used to give the same 20x15 mm image (#42)."""
+    from gelsim.mujoco.attach import pad_size_m
+
+    for half in ((2.5, 2.5), (30.0, 30.0)):
+        m, d = _pad_scene(half)
+        with pytest.raises(GelsimError, match=r"pad 'pad' is .* but the gelsight-mini profile sees 20\.\d+ x 15\.\d+ mm"
+                                              r".*half-sizes 0\.010\d+ 0\.007\d+ m") as e:
+            GelSightSensor(m, d, "pad", warmup=False)
+        assert "\n" not in str(e.value)
+    hx, hy, _ = pad_size_m("gelsight-mini")
+    m, d = _pad_scene((round(hx / MM, 3), round(hy / MM, 3)))     # the size attach gives, to MJCF's digits
+    GelSightSensor(m, d, "pad", warmup=False)
+
+
+def test_a_fractional_resolution_is_refused_not_truncated(pressed_ball):
+    m, d = pressed_ball
+    for bad in ((320.7, 240), (320, 240.5), (True, 240), (320,), "320x240"):
+        with pytest.raises(GelsimError, match="whole px"):
+            GelSightSensor(m, d, "pad", profile="vitac", resolution=bad, warmup=False)
+    s = GelSightSensor(m, d, "pad", profile="vitac", resolution=(np.int64(160), 120.0), warmup=False)
+    assert s.shape == (120, 160)
+
+
+def test_render_runs_on_one_thread_and_gives_the_callers_threading_back(pressed_ball):
+    """numpy's OpenBLAS and OpenCV are limited to one thread inside render() only (#42)."""
+    import cv2
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    m, d = pressed_ball
+    s = GelSightSensor(m, d, "pad", profile="vitac", resolution=(160, 120), noise=False)
+    seen = []
+    inner = s.renderer.render
+
+    def spy(*a, **k):
+        seen.append(([i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"], cv2.getNumThreads()))
+        return inner(*a, **k)
+
+    s.renderer.render = spy
+    old_cv = cv2.getNumThreads()
+    with threadpool_limits(limits=2, user_api="blas"):
+        cv2.setNumThreads(2)
+        try:
+            assert s.render().in_contact
+            after = ([i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"], cv2.getNumThreads())
+        finally:
+            cv2.setNumThreads(old_cv)
+    blas_inside, cv_inside = seen[0]
+    assert blas_inside and set(blas_inside) == {1} and cv_inside == 1
+    assert set(after[0]) == {2} and after[1] == 2                       # the caller's settings, given back
+    unlimited = GelSightSensor(m, d, "pad", profile="vitac", resolution=(160, 120), noise=False, threads=None,
+                               warmup=False)
+    unlimited.renderer.render = spy
+    cv2.setNumThreads(2)
+    try:
+        unlimited.render()
+        assert seen[-1][1] == 2                                             # threads=None: left alone
+    finally:
+        cv2.setNumThreads(old_cv)
+    with pytest.raises(GelsimError, match="threads 0 is not a thread count"):
+        GelSightSensor(m, d, "pad", profile="vitac", threads=0)
+
+
+def test_warm_up_at_construction_changes_no_frame(pressed_ball):
+    m, d = pressed_ball
+    frames = []
+    for warm in (False, True):
+        s = GelSightSensor(m, d, "pad", profile="vitac", resolution=(160, 120), seed=4, warmup=warm)
+        frames.append([s.render().rgb for _ in range(3)])
+    for a, b in zip(*frames):
+        np.testing.assert_array_equal(a, b)

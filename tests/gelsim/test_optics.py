@@ -405,10 +405,10 @@ def _reference_lut_frame(renderer, depth):
     window doubling or fixed-point maps. Returns float32 (H, W, 3) DN without markers."""
     from scipy import ndimage
 
-    from gelsim.optics.composite import gaussian_blur
     from gelsim.optics.field import pixel_grid_mm
+    from gelsim.optics.ops.filters import gaussian_blur
 
-    prof, sh = renderer.profile, renderer._shader
+    prof, sh = renderer.profile, renderer.shader
     h, w = prof.shape
     mm = prof.image.mm_per_px
     d = depth.astype(np.float64)
@@ -437,7 +437,7 @@ def _reference_lut_frame(renderer, depth):
     hg = hp.reshape(hp.shape[0] // 2, 2, hp.shape[1] // 2, 2).mean(axis=(1, 3))
     yy, xx = np.mgrid[0:hg.shape[0], 0:hg.shape[1]].astype(np.float64)
     cols = []
-    for phi, tan_e in zip(s["shadow_dirs_deg"], s["shadow_tan"]):
+    for phi, tan_e in zip(s.dirs_deg, s.tan):
         rise = float(tan_e) * mm * 2
         best = np.full(hg.shape, -np.inf)
         for step in range(1, int(np.ceil(hg.max() / rise)) + 2):
@@ -446,9 +446,9 @@ def _reference_lut_frame(renderer, depth):
             samp = ndimage.map_coordinates(hg, [sy, sx], order=1, mode="constant", cval=0.0)
             best = np.maximum(best, samp - step * rise)
         o = np.maximum(best - hg, 0.0)
-        cols.append(o / (o + s["shadow_sat_mm"]))
-    f = np.stack(cols, axis=-1) @ s["shadow_rgb"].astype(np.float64)
-    sigma = math.hypot(s["shadow_soft_mm"] / mm, prof.camera.blur_sigma_px) / 2
+        cols.append(o / (o + s.sat_mm))
+    f = np.stack(cols, axis=-1) @ s.mix.T.astype(np.float64)
+    sigma = math.hypot(s.soft_mm / mm, prof.camera.blur_sigma_px) / 2
     f = np.stack([ndimage.gaussian_filter(f[..., c], sigma, mode="constant", truncate=4.0) for c in range(3)], -1)
     up = cv2.resize(f.astype(np.float32), (hg.shape[1] * 2, hg.shape[0] * 2), interpolation=cv2.INTER_LINEAR)
     return (frame + up[:h, :w] + _reference_coarse_terms(renderer, depth)).astype(np.float32)
@@ -460,9 +460,10 @@ def _reference_coarse_terms(renderer, depth):
     colours, bilinear back to full resolution, nothing where no pixel changes by COARSE_SKIP_DN."""
     from scipy import ndimage
 
-    from gelsim.optics.lut import COARSE_SKIP_DN, coarse_factor, load_table, table_path
+    from gelsim.optics.lut import load_table, table_path
+    from gelsim.optics.ops.coarse import COARSE_SKIP_DN, coarse_factor
 
-    prof, sh = renderer.profile, renderer._shader
+    prof = renderer.profile
     t = load_table(table_path(prof))
     h, w = prof.shape
     mm = prof.image.mm_per_px
@@ -515,6 +516,8 @@ LUT_MEAN_TOL_DN, LUT_MAX_TOL_DN = 0.25, 1.0
 
 @pytest.mark.parametrize("scene", ["sphere", "steep sphere", "weave with shadows", "gentle weave"])
 def test_lut_path_matches_plain_reference(small, scene):
+    from gelsim.optics.ops.shadows import shadow_grid
+
     r = Renderer(small, seed=2)
     depth = {"sphere": lambda: sphere_dent(small, 2.0, 0.5, smooth_px=1.0),
              "steep sphere": lambda: sphere_dent(small, 1.0, 0.6, center_mm=(1.3, -0.7)),
@@ -526,17 +529,16 @@ def test_lut_path_matches_plain_reference(small, scene):
     assert change.max() > 10.0                      # the scene is seen
     err = np.abs(out - ref)
     assert err.mean() < LUT_MEAN_TOL_DN and err.max() < LUT_MAX_TOL_DN, (err.mean(), err.max())
-    if scene in ("steep sphere", "weave with shadows"):
-        # these cast shadows (so the shadow path is compared too); the gentle weave casts none
-        assert r._shader._shadows(depth, small.camera.blur_sigma_px) is not None
-    if scene == "gentle weave":
-        assert r._shader._shadows(depth, small.camera.blur_sigma_px) is None
+    if scene != "sphere":
+        # the steep scenes cast shadows (so the shadow path is compared too); the gentle weave casts none
+        grid = shadow_grid(depth, r.shader.shadow, small.image.mm_per_px, small.camera.blur_sigma_px)
+        assert (grid is not None) == (scene != "gentle weave")
 
 
 def test_banded_pass_equals_one_pass_over_the_box(small, monkeypatch):
     """Row bands with the blur's and the gradient's extra rows reproduce one pass over the box."""
-    from gelsim.optics.composite import gaussian_blur
     from gelsim.optics.lut import LutShader
+    from gelsim.optics.ops.filters import gaussian_blur
 
     r = Renderer(small, seed=0)
     d = sphere_dent(small, 2.5, 0.4, center_mm=(0.5, 0.3))
@@ -544,21 +546,19 @@ def test_banded_pass_equals_one_pass_over_the_box(small, monkeypatch):
     monkeypatch.setattr(LutShader, "BAND_ROWS", 7)
     banded = r.render_float(d)
     np.testing.assert_allclose(banded, whole, atol=2e-4)
-    # and the one pass is background + blurred table + shadows
-    sh = r._shader
-    roi, big = sh._boxes(d, 2, small.camera.blur_sigma_px)
+    # and the one pass is background + blurred table + shadows + depth and halo terms, in that order
+    (roi, table, blurred), *terms = r.shader.parts(d, 2, small.camera.blur_sigma_px)
+    assert not blurred and len(terms) == 2 and all(t[2] for t in terms)     # both terms are part of this press
     ref = r.background_float()
-    ref[roi] += gaussian_blur(sh._shade_mosaic(d, roi).copy(), small.camera.blur_sigma_px)
-    ref[big] += sh._shadows(d[big], small.camera.blur_sigma_px)
-    coarse = sh._coarse(d)
-    assert coarse is not None                       # the depth and halo terms are part of this press
-    ref[coarse[0]] += coarse[1]
+    ref[roi] += gaussian_blur(table.copy(), small.camera.blur_sigma_px)
+    for box, change, _ in terms:
+        ref[box] += change
     np.testing.assert_allclose(whole, ref, atol=2e-4)
 
 
 def test_no_shadow_shortcut_is_exact():
     """The slope bound that skips a direction gives what the full window-doubling max gives."""
-    from gelsim.optics.lut import grid_slopes, occlusion_grid
+    from gelsim.optics.ops.shadows import grid_slopes, occlusion_grid
 
     rng = np.random.default_rng(4)
     for amp in (0.01, 0.05, 0.3):
@@ -577,9 +577,9 @@ def test_constant_sigma_noise_pass_matches_general_formula(small):
     h, w = small.shape
     ramp = np.linspace(-20.0, 280.0, w, dtype=np.float32)          # reaches both ends of uint8
     frame = np.ascontiguousarray(np.broadcast_to(ramp[None, :, None], (h, w, 3)))
-    z = r._noise.pick(9)
+    z = r.optics.noise.pick(9)
     expect = np.clip(np.rint(frame.astype(np.float64) + small.noise.read_sigma_dn * z), 0, 255)
-    got = r._noise.apply(frame, 9).astype(np.float64)
+    got = r.optics.noise.apply(frame, 9).astype(np.float64)
     assert (got == 0).any() and (got == 255).any()
     assert np.abs(got - expect).max() <= 1.0 and (got != expect).mean() < 1e-3
 
@@ -589,7 +589,7 @@ def test_upsampled_rows_equal_those_of_the_whole_upsampling(factor):
     """A band's rows of a grid's bilinear upsampling, computed from the grid rows they read only, are
     bit for bit those of the whole grid's (the renderer adds the shadows and the depth and halo terms
     band by band this way)."""
-    from gelsim.optics.lut import _upsample_rows
+    from gelsim.optics.ops.resample import upsample_rows
 
     rng = np.random.default_rng(factor)
     for hs, ws in ((23, 31), (120, 160)):
@@ -600,7 +600,7 @@ def test_upsampled_rows_equal_those_of_the_whole_upsampling(factor):
             for b in {a + 1, a + 7, a + 96, hs * factor}:
                 b = min(b, hs * factor)
                 if b > a:
-                    np.testing.assert_array_equal(_upsample_rows(grid, factor, a, b, width), whole[a:b, :width])
+                    np.testing.assert_array_equal(upsample_rows(grid, factor, a, b, width), whole[a:b, :width])
 
 
 def test_a_renderer_reused_over_a_sequence_draws_what_fresh_ones_draw(small):
@@ -625,12 +625,15 @@ def test_frames_finished_band_by_band_equal_the_whole_frame_passes(small, monkey
     composed (in a band-sized buffer): bit for bit the whole-frame passes over render_float's frame,
     for presses at the frame's edges and in its middle (rows above and below the shaded box), markers
     at rest and moved, with and without noise."""
-    from gelsim.optics.composite import to_uint8
     from gelsim.optics.lut import LutShader
+    from gelsim.optics.ops.readout import to_uint8
 
     monkeypatch.setattr(LutShader, "BAND_ROWS", band_rows)
     prof = replace(small, noise={"shot_gain": shot_gain})
     r = Renderer(prof, seed=2)
+    banded = []                                       # whether each compose wrote bands only (no frame)
+    compose = r.shader.compose
+    monkeypatch.setattr(r.shader, "compose", lambda frame, *a: banded.append(frame is None) or compose(frame, *a))
     corners, _ = marker_grid(prof)
     rng = np.random.default_rng(band_rows)
     fw, fh = prof.field_mm
@@ -639,21 +642,22 @@ def test_frames_finished_band_by_band_equal_the_whole_frame_passes(small, monkey
         d = sphere_dent(prof, 1.5 + i, 0.2 + 0.1 * i, center_mm=centre)
         mk = corners if i % 2 == 0 else corners + rng.normal(0, 1.5, corners.shape).astype(np.float32)
         want = r.render_float(d, mk)
-        np.testing.assert_array_equal(r.render(d, mk, seed=i), r._noise.apply(want, i))
+        np.testing.assert_array_equal(r.render(d, mk, seed=i), r.optics.noise.apply(want, i))
+        n_banded += banded[-1]
         np.testing.assert_array_equal(r.render(d, mk, noise=False), to_uint8(want))
-        n_banded += r._compose(d, mk, lambda rows, y0: None)[1]
-    assert n_banded == 4                                          # every press took the banded path
+        n_banded += banded[-1]
+    assert n_banded == 8 and banded.count(False) == 4             # every render took the banded path
 
 
 def test_lut_compose_hands_every_row_to_finish_once_in_order(small, monkeypatch):
     """LutShader.compose's finish sees each frame row once, in order, with the values that the frame
     gets without finish, whether the bands are the frame's own rows or a band buffer (frame None)."""
-    from gelsim.optics.composite import blur_radius_px, gaussian_blur
     from gelsim.optics.lut import LutShader
+    from gelsim.optics.ops.filters import blur_radius_px, gaussian_blur
 
     monkeypatch.setattr(LutShader, "BAND_ROWS", 11)
     r = Renderer(small, seed=0)
-    sh, bg = r._shader, r.background_float()
+    sh, bg = r.shader, r.background_float()
     sigma = small.camera.blur_sigma_px
     d = sphere_dent(small, 2.0, 0.4, center_mm=(1.0, -0.5))
     whole = np.zeros_like(bg)

@@ -1,12 +1,14 @@
-"""The compositing's fused kernels against the OpenCV passes they replace (gelsim/optics/kernels.py)."""
+"""The numpy backend's fused numba kernels of the markers and of the readout against the OpenCV passes they
+replace (gelsim/optics/ops/markers.py, gelsim/optics/ops/readout.py)."""
 import math
 
 import cv2
 import numpy as np
 import pytest
 
-from gelsim.optics import kernels as K
-from gelsim.optics.composite import NoiseBank
+from gelsim.optics.ops import markers as M
+from gelsim.optics.ops import readout as R
+from gelsim.optics.ops.readout import NoiseBank
 
 PAD = 8
 # a * a = 1 + 2^-11 + 2^-24 exactly: the 2^-24 survives a fused multiply-add only (a float32 multiply drops it)
@@ -57,7 +59,7 @@ def test_add_noise_equals_addweighted_into_8_bits(shape):
         oy, ox = (int(v) for v in rng.integers(PAD + 1, size=2))
         z = bank[oy:oy + h, ox:ox + w]
         ref = cv2.addWeighted(frame, 1.0, z, float(np.float32(sigma)), 0.0, dtype=cv2.CV_8U)
-        got = _kernel(K.add_noise_u8, frame, bank, oy, ox, sigma)
+        got = _kernel(R.add_noise_u8, frame, bank, oy, ox, sigma)
         np.testing.assert_array_equal(got, ref)
     assert (ref == 0).any() and (ref == 255).any()      # both saturations were exercised
 
@@ -75,7 +77,7 @@ def test_add_shot_noise_equals_the_opencv_passes(shape):
             frame = _frame(rng, h, w)
             oy, ox = (int(v) for v in rng.integers(PAD + 1, size=2))
             ref = _opencv_shot(frame, bank[oy:oy + h, ox:ox + w], g, rv)
-            got = _kernel(K.add_shot_noise_u8, frame, bank, oy, ox, gain, read_var)
+            got = _kernel(R.add_shot_noise_u8, frame, bank, oy, ox, gain, read_var)
             np.testing.assert_array_equal(got, ref)
 
 
@@ -85,7 +87,7 @@ def test_fma32_rounds_once():
 
     @njit
     def f(a, b, c):
-        return K.fma32(a, b, c)
+        return R.fma32(a, b, c)
 
     a, c = np.float32(_A), np.float32(_C)
     assert f(a, a, c) == np.float32(2.0 ** -24)
@@ -124,14 +126,14 @@ def test_noise_kernels_round_as_opencv_on_crafted_pixels():
     bank[...] = 2.0 ** -20                       # 100.5 + 2^-20 rounds back to 100.5 in float32
     ref = cv2.addWeighted(frame, 1.0, bank[:h, :w], 1.0, 0.0, dtype=cv2.CV_8U)
     assert (ref == 100).all()
-    np.testing.assert_array_equal(_kernel(K.add_noise_u8, frame, bank, 0, 0, 1.0), ref)
+    np.testing.assert_array_equal(_kernel(R.add_noise_u8, frame, bank, 0, 0, 1.0), ref)
     if not FUSES:
         pytest.skip("OpenCV's addWeighted rounds the variance twice without FMA instructions")
     frame = np.full((h, w, 3), _A, np.float32)
     bank[...] = 50.0 * 2.0 ** 12                 # sqrt(2^-24) * z = 50 DN
     ref = _opencv_shot(frame, bank[:h, :w], _A, _C)
     assert (ref == 51).all()
-    np.testing.assert_array_equal(_kernel(K.add_shot_noise_u8, frame, bank, 0, 0, _A, _C), ref)
+    np.testing.assert_array_equal(_kernel(R.add_shot_noise_u8, frame, bank, 0, 0, _A, _C), ref)
 
 
 # ---------------------------------------------------------------- markers
@@ -190,7 +192,7 @@ def _quads(rng, n, h, w, size=9.0):
 
 @pytest.mark.parametrize("pad", [1, 3])
 def test_marker_coverage_equals_the_numpy_expression(pad):
-    from gelsim.optics.composite import coverage_strip
+    from gelsim.optics.ops.markers import coverage_strip
 
     rng = np.random.default_rng(pad)
     for _ in range(5):
@@ -219,14 +221,14 @@ def test_multiply_patches_equals_a_multiply_per_patch(channels):
     ref = frame.copy()
     _opencv_apply(ref, lo, strip)
     got = frame.copy()
-    K.multiply_patches_rows(got, lo, strip, 0)
+    M.multiply_patches_rows(got, lo, strip, 0)
     np.testing.assert_array_equal(got, ref)
     assert (lo < 0).any() and (lo[:, 0] + p > w).any() and (lo[:, 1] + p > h).any()
 
 
 def test_marker_factors_darken_as_before():
     """The renderer's markers: factors and darkened frame bit for bit those of the former OpenCV passes."""
-    from gelsim.optics.composite import apply_marker_factors, marker_factors
+    from gelsim.optics.ops.markers import apply_marker_factors, marker_factors
 
     rng = np.random.default_rng(11)
     h, w = 72, 96
@@ -264,13 +266,13 @@ def test_multiply_patches_band_by_band_equals_the_whole_frame():
     strip += rng.normal(0, 1e-3, strip.shape).astype(np.float32)
     frame = (rng.random((h, w, 3), dtype=np.float32) * 255).astype(np.float32)
     ref = frame.copy()
-    K.multiply_patches_rows(ref, lo, strip, 0)
+    M.multiply_patches_rows(ref, lo, strip, 0)
     assert (ref != frame).mean() > 0.3
     for band in (1, 3, 7, 16, h):
         got = frame.copy()
         for y0 in range(0, h, band):
             rows = np.ascontiguousarray(got[y0:y0 + band])    # a separate buffer, as the renderer's band
-            K.multiply_patches_rows(rows, lo, strip, y0)
+            M.multiply_patches_rows(rows, lo, strip, y0)
             got[y0:y0 + band] = rows
         np.testing.assert_array_equal(got, ref)
 

@@ -104,3 +104,28 @@ def test_pick_across_families_spreads_and_keeps_one_fabric_per_family():
     for s in m["sequences"]:
         s["peak_force_n"] = 0.0
     assert pick_across_families(m, 3) == []
+
+
+def test_the_first_look_shows_what_the_contact_changed(tiny):
+    """previews/first_look.png and one 960x720 frame per family beside its labelled, stretched difference
+    from the flat gel (#42: the demo's previews showed grey frames in which contact and pre-contact looked
+    alike)."""
+    import cv2
+
+    from gelsim.firstlook import FABRICS, RESOLUTION, first_look_frames, stretched_difference
+
+    prev = tiny / "previews"
+    sheet = cv2.imread(str(prev / "first_look.png"))
+    w, h = RESOLUTION
+    assert sheet.shape == (len(FABRICS) * h // 2, w, 3)
+    files = sorted((prev / "first_look").glob("f*.png"))
+    assert len(files) == len(FABRICS)
+    assert cv2.imread(str(files[0])).shape == (h, 2 * w, 3)
+    look = first_look_frames(FABRICS[:1], "vitac")[0]
+    assert look["frame"].shape == (h, w, 3)
+    diff = look["difference"].astype(int) - 128
+    # the contact changed the frame by a few DN; stretched, it spans most of the range
+    assert look["gain"] > 2 and np.percentile(np.abs(diff), 99.5) >= 120
+    flat = np.full((4, 4, 3), 100, np.uint8)
+    img, gain = stretched_difference(flat, flat)
+    assert (img == 128).all() and gain == 127.0                     # nothing changed: mid-grey, no division by 0

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from gelsim.errors import GelsimError
-from gelsim.optics.lut import LutShader, load_table, occlusion, shadow_factors, table_path
+from gelsim.optics.lut import LutShader, load_table, table_path
+from gelsim.optics.ops.shadows import occlusion, shadow_factors
 from gelsim.realism import (SMALL_SLOPE, ball_depth, ball_indentation_mm, ball_slope, check_datapack, crop_box,
                             disk_mask, evaluate, frame_metrics, load_datapack, psnr, r15_pack_path, small_slope_frame,
                             small_slope_summary, summarize)

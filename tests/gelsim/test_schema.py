@@ -1,4 +1,4 @@
-"""gelsim.schema: the dataset format in one place, and the README's layout section agreeing with it."""
+"""gelsim.schema: the dataset format in one place, and docs/dataset.md's layout section agreeing with it."""
 from __future__ import annotations
 
 import json
@@ -10,13 +10,13 @@ import pytest
 
 from gelsim import schema
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+README = Path(__file__).resolve().parents[2] / "docs" / "dataset.md"   # the layout moved here from the README
 
 
 def _layout_section() -> str:
     text = README.read_text()
-    start = text.index("### Layout (what `stam` reads)")
-    return text[start:text.index("\n### ", start + 1)]
+    start = text.index("## Layout (what `stam` reads)")
+    return text[start:text.index("\n## ", start + 1)]
 
 
 def test_constants_are_defined_once():
@@ -54,7 +54,7 @@ def test_readme_manifest_example_has_the_schema_fields_in_order():
 
 
 def test_readme_label_table_is_the_schema():
-    """Every key of the README's label table is a schema key with the same shape, and back."""
+    """Every key of docs/dataset.md's label table is a schema key with the same shape, and back."""
     rows = re.findall(r"^\| (`[^|]+`) \| ([^|]+) \|", _layout_section(), re.M)
     shapes = {}
     for keys, shape_cell in rows:

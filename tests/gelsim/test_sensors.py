@@ -71,7 +71,7 @@ def test_realism_record_centres_are_checked(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["gelsight-r15", "gelsight-mini"])
 def test_recorded_realism_is_what_the_profiles_score(name):
-    """assets/realism.toml holds what `gelsim realism` measures now (data cached only)."""
+    """gelsim/assets/realism.toml holds what `gelsim realism` measures now (data cached only)."""
     rec = realism_records()[name]
     path = taxim_pack_path(rec.datapack)
     if not path.is_file():

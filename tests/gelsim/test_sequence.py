@@ -8,7 +8,8 @@ from gelsim.fabrics import load_catalog
 from gelsim.fidelity import get_fidelity
 from gelsim.motion import sample_motion
 from gelsim.sensor import load_profile
-from gelsim.sequence import SequenceOutput, contact_location, render_sequence
+from gelsim.sequence import SequenceOptions, contact_location, render_sequence
+from gelsim.sinks import drain
 
 
 def test_contact_location_of_a_known_mask():
@@ -43,10 +44,8 @@ def test_sequence_labels_locate_the_contact():
     fid = get_fidelity("fast")
     T, pre = 8, 3
     motion = sample_motion("twist", 5, frames=(T, T), precontact=(pre, pre))
-    out = SequenceOutput({}, {})
-    for _ in render_sequence(load_catalog()[21], motion, profile, fid, seed=5, out=out, outputs={"imprint"}):
-        pass
-    lab = out.labels
+    lab, _ = drain(render_sequence(load_catalog()[21], motion, profile, fid, seed=5,
+                                   options=SequenceOptions(outputs={"imprint"})))
     cen, box = lab["contact_centroid_px"], lab["contact_bbox_px"]
     assert cen.shape == (T, 2) and box.shape == (T, 4)
     assert cen.dtype == np.float32 and box.dtype == np.float32

@@ -7,7 +7,7 @@ import pytest
 from gelsim.errors import GelsimError
 from gelsim.optics import Renderer
 from gelsim.optics import shader as sh
-from gelsim.optics.composite import gaussian_blur
+from gelsim.optics.ops.filters import gaussian_blur
 from gelsim.sensor import load_profile
 
 

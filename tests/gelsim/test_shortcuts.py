@@ -9,11 +9,12 @@ depth within 2% of the peak.
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from gelsim import sequence
+from gelsim import sequence, stream
 from gelsim.contact import simulate
 from gelsim.errors import GelsimError
 from gelsim.fabrics import load_catalog
@@ -21,7 +22,8 @@ from gelsim.fidelity import get_fidelity
 from gelsim.motion import sample_motion
 from gelsim.scene import FabricObject, physics_surface
 from gelsim.sensor import load_profile
-from gelsim.sequence import NEGLIGIBLE_PX, SequenceOutput, render_sequence
+from gelsim.sequence import NEGLIGIBLE_PX, SequenceOptions, render_sequence
+from gelsim.sinks import KeepFrames, drain
 
 T, PRE = 8, 3
 
@@ -42,10 +44,10 @@ def setup():
 
 def run(setup, action="press", fid=None, **kw):
     profile, base_fid, fabric, motions, contacts = setup
-    out = SequenceOutput({}, {})
-    frames = list(render_sequence(fabric, motions[action], profile, fid or base_fid, seed=7, out=out,
-                                  contact=contacts[action], **kw))
-    return frames, out
+    frames = KeepFrames()
+    labels, _ = drain(render_sequence(fabric, motions[action], profile, fid or base_fid, seed=7,
+                                      options=SequenceOptions(contact=contacts[action], **kw)), [frames])
+    return frames.frames, SimpleNamespace(labels=labels)
 
 
 @pytest.mark.parametrize("action", ["press", "twist"])
@@ -65,7 +67,7 @@ def test_shortcuts_match_full_computation(setup, action):
 
 def test_precontact_frames_skip_imprint_and_markers(setup, monkeypatch):
     calls = {"press": 0, "displace": 0}
-    real_press, real_displace = sequence.press, sequence.displace
+    real_press, real_displace = stream.press, stream.displace
 
     def counting_press(*a, **k):
         calls["press"] += 1
@@ -75,8 +77,8 @@ def test_precontact_frames_skip_imprint_and_markers(setup, monkeypatch):
         calls["displace"] += 1
         return real_displace(*a, **k)
 
-    monkeypatch.setattr(sequence, "press", counting_press)
-    monkeypatch.setattr(sequence, "displace", counting_displace)
+    monkeypatch.setattr(stream, "press", counting_press)
+    monkeypatch.setattr(stream, "displace", counting_displace)
     _, out = run(setup)
     touching = int(np.count_nonzero(out.labels["in_contact"] & (out.labels["normal_force_n"] > 0)))
     assert 0 < touching < T
@@ -88,13 +90,13 @@ def test_precontact_frames_skip_imprint_and_markers(setup, monkeypatch):
 
 def test_press_drops_negligible_twist_only(setup, monkeypatch):
     seen = []
-    real = sequence.displace
+    real = stream.displace
 
     def spy(*a, **k):
         seen.append((k["shear_mm"], k["twist_deg"]))
         return real(*a, **k)
 
-    monkeypatch.setattr(sequence, "displace", spy)
+    monkeypatch.setattr(stream, "displace", spy)
     profile, *_, contacts = setup
     run(setup, "press")
     c = contacts["press"]
@@ -123,8 +125,8 @@ def test_negligible_thresholds():
 
 def test_twist_sequence_keeps_its_twist(setup, monkeypatch):
     seen = []
-    real = sequence.displace
-    monkeypatch.setattr(sequence, "displace", lambda *a, **k: seen.append(k["twist_deg"]) or real(*a, **k))
+    real = stream.displace
+    monkeypatch.setattr(stream, "displace", lambda *a, **k: seen.append(k["twist_deg"]) or real(*a, **k))
     run(setup, "twist")
     assert max(abs(t) for t in seen) > 0.1
 
@@ -132,7 +134,7 @@ def test_twist_sequence_keeps_its_twist(setup, monkeypatch):
 def test_outputs_nobody_asked_for_are_not_computed(setup, monkeypatch):
     _, full = run(setup)
     called = []
-    monkeypatch.setattr(sequence, "press", lambda *a, **k: called.append("press"))
+    monkeypatch.setattr(stream, "press", lambda *a, **k: called.append("press"))
     monkeypatch.setattr(sequence, "Renderer", lambda *a, **k: called.append("renderer"))
     frames, out = run(setup, outputs=())
     assert frames == [None] * T and called == []
@@ -143,7 +145,7 @@ def test_outputs_nobody_asked_for_are_not_computed(setup, monkeypatch):
 
 def test_imprint_only_output(setup, monkeypatch):
     _, full = run(setup)
-    monkeypatch.setattr(sequence, "displace", lambda *a, **k: pytest.fail("markers computed"))
+    monkeypatch.setattr(stream, "displace", lambda *a, **k: pytest.fail("markers computed"))
     frames, out = run(setup, outputs=("imprint",))
     assert all(f is None for f in frames)
     np.testing.assert_array_equal(out.labels["indentation_mm"], full.labels["indentation_mm"])
@@ -164,12 +166,12 @@ def test_elastic_touched_window_within_tolerance(setup):
 def test_bad_outputs_and_missing_object(setup):
     profile, fid, fabric, motions, contacts = setup
     with pytest.raises(GelsimError, match="unknown outputs"):
-        list(render_sequence(fabric, motions["press"], profile, fid, seed=0, outputs=("video",)))
+        list(render_sequence(fabric, motions["press"], profile, fid, seed=0, options=SequenceOptions(outputs=("video",))))
     with pytest.raises(GelsimError, match="not something the sensor can touch"):
         list(render_sequence(None, motions["press"], profile, fid, seed=0))
     short = dataclasses.replace(motions["press"], num_frames=T + 1)
     with pytest.raises(GelsimError, match="contact has"):
-        list(render_sequence(fabric, short, profile, fid, seed=0, contact=contacts["press"]))
+        list(render_sequence(fabric, short, profile, fid, seed=0, options=SequenceOptions(contact=contacts["press"])))
 
 
 def test_twoscale_touched_window_equals_full():

@@ -253,7 +253,8 @@ def test_labels_agree_with_the_marker_field_in_the_contact_on_generated_sequence
     within AGREEMENT_TOLERANCE, at the action's key frame, for every label large enough to compare."""
     from gelsim.fabrics import load_catalog
     from gelsim.motion import sample_motion
-    from gelsim.sequence import SequenceOutput, render_sequence
+    from gelsim.sequence import SequenceOptions, render_sequence
+    from gelsim.sinks import drain
 
     prof = load_profile("vitac").with_resolution(320, 240)
     fid = get_fidelity("balanced")
@@ -262,11 +263,9 @@ def test_labels_agree_with_the_marker_field_in_the_contact_on_generated_sequence
     for fabric_id in (8, 21, 50):
         for seed in range(3):
             motion = sample_motion(action, seed, frames=(12, 12), precontact=(1, 1))
-            out = SequenceOutput({}, {})
-            for _ in render_sequence(catalog[fabric_id], motion, prof, fid, seed=seed, out=out,
-                                     outputs={"markers"}):
-                pass
-            row = sequence_stats(out.labels, action, prof.image.mm_per_px, prof.image.width_px,
+            labels, _ = drain(render_sequence(catalog[fabric_id], motion, prof, fid, seed=seed,
+                                              options=SequenceOptions(outputs={"markers"})))
+            row = sequence_stats(labels, action, prof.image.mm_per_px, prof.image.width_px,
                                  prof.image.height_px)
             for what in ("rotation", "translation"):
                 ratio = row[f"{what}_ratio_contact"]

@@ -17,7 +17,7 @@ from gelsim.errors import GelsimError  # noqa: E402
 from gelsim.optics import Renderer  # noqa: E402
 from gelsim.optics.shader import check_shader, shader_class  # noqa: E402
 from gelsim.optics.torch_backend import (TOL_MAX_DN, TOL_MAX_UINT8_DN, TOL_MEAN_DN, BatchRenderer,  # noqa: E402
-                                         FrameBatcher, TorchShader, resolve_device)
+                                         TorchShader, resolve_device)
 
 from test_optics import _weave, marker_grid, replace, sphere_dent  # noqa: E402
 
@@ -75,8 +75,9 @@ def test_matches_fast_within_the_stated_tolerance(shading, lut, phong, fabric_de
     if shading == "lut":
         # the shadows and the halo are part of these scenes (so they are compared too)
         d = torch.from_numpy(scenes["steep sphere"])[None]
-        assert batch.shader._shadows(d, 0.0).abs().max() > 1.0
-        assert batch.shader._coarse(d).abs().max() > 1.0
+        shadows, coarse = batch.shader.terms
+        assert shadows.part_torch(d, 0.0).abs().max() > 1.0
+        assert coarse.part_torch(d, 0.0).abs().max() > 1.0
 
 
 def test_a_wrong_shading_is_caught(lut):
@@ -102,37 +103,24 @@ def test_same_bytes_for_any_batch_size_and_order(lut):
     assert len({f.tobytes() for f in together}) == len(together)     # the frames do differ
 
 
-def test_frame_batcher_same_frames_in_order_for_any_batch(lut):
-    r = BatchRenderer(Renderer(lut, "torch", seed=0))
-    depths = [None, sphere_dent(lut, 2.0, 0.2), sphere_dent(lut, 2.0, 0.4), None, _weave(lut, 0.05, 0.03)]
-    fast = Renderer(lut, "fast", seed=0)
-    out = {}
-    for batch in (1, 3, 8):
-        frames, rng = [], np.random.default_rng(9)
-        with FrameBatcher(r, batch, frames.append) as fb:
-            for d in depths:
-                assert fb.render(d, None, seed=rng) is None
-        out[batch] = [f.tobytes() for f in frames]
-        # the noise was drawn from the sequence's generator as the numpy renderer draws it
-        ref_rng = np.random.default_rng(9)
-        for d in depths:
-            fast.render(d, None, seed=ref_rng)
-        assert rng.integers(1 << 30) == ref_rng.integers(1 << 30)
-    assert len(out[1]) == len(depths) and out[1] == out[3] == out[8]
-
-
-def test_frame_batcher_reraises_the_writers_error(lut):
-    r = BatchRenderer(Renderer(lut, "torch", seed=0))
-
-    def sink(frame):
-        raise OSError("disk full")
-
-    with pytest.raises(OSError, match="disk full"):
-        with FrameBatcher(r, 2, sink) as fb:
-            for _ in range(5):
-                fb.render(None, None, seed=0)
-    with pytest.raises(GelsimError, match="--batch"):
-        FrameBatcher(r, 0, sink)
+def test_stage_takes_device_tensors(lut):
+    """The imprint and the markers as tensors (as a device imprint hands them over) give the frames of the
+    same arrays, validated on the device with one line per problem."""
+    r = BatchRenderer(Renderer(lut, "torch", seed=4))
+    depths = [sphere_dent(lut, 2.0, 0.4), None, _weave(lut, 0.05, 0.03)]
+    corners, _ = marker_grid(lut)
+    marks = [corners, corners + np.float32(0.5), corners]
+    want = r.quantise(r.compose(*r.stage(depths, marks)), [r.draw(s) for s in (1, 2, 3)])
+    dt = torch.stack([torch.zeros(lut.shape) if d is None else torch.from_numpy(d) for d in depths])
+    ct = torch.from_numpy(np.stack(marks))
+    got = r.quantise(r.compose(*r.stage(dt, ct)), [r.draw(s) for s in (1, 2, 3)])
+    assert torch.equal(want, got)
+    for bad, match in ((dt[:, :-1], "depth map tensor has shape"), (dt * float("nan"), "NaN"),
+                       (dt - 0.1, "negative"), (dt.double().long(), "dtype")):
+        with pytest.raises(GelsimError, match=match):
+            r.stage(bad, None)
+    with pytest.raises(GelsimError, match="marker corners tensor"):
+        r.stage(dt, ct[..., :1])
 
 
 def test_renderer_one_frame_and_supersampling_agree(lut):
@@ -153,7 +141,7 @@ def test_renderer_one_frame_and_supersampling_agree(lut):
 def test_shader_contract_and_delta(lut):
     cls = check_shader(shader_class("torch", lut), "torch")
     assert cls is TorchShader and cls.name == "torch"
-    sh = Renderer(lut, "torch")._shader
+    sh = Renderer(lut, "torch").shader
     assert sh.delta(np.zeros(lut.shape, np.float32)) is None
     d = sphere_dent(lut, 2.0, 0.4)
     roi, change = sh.delta(d)

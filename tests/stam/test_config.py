@@ -138,7 +138,7 @@ def load_checkpoint_epoch(path):
 
 @pytest.mark.slow
 def test_paper_preset_commands_run_on_a_tiny_dataset(tmp_path, capsys):
-    """The GPU run's commands (README, "Rendering on a GPU"), at toy size on the CPU: the dataset rendered by
+    """The GPU run's commands (docs/performance.md, "Rendering in batches, on a GPU"), at toy size on the CPU: the dataset rendered by
     the torch backend in batches, then one epoch of the paper preset's model (full AlexNet at 224 px,
     fine-tuned end to end) on it. About 20 s on 2 cores, mostly the 58 M-parameter model."""
     from gelsim.cli import main as gelsim_main
@@ -155,3 +155,19 @@ def test_paper_preset_commands_run_on_a_tiny_dataset(tmp_path, capsys):
     paper = load_preset("paper").train
     assert res["config"]["image_size"] == paper.image_size == 224 and res["config"]["width"] == paper.width == 1.0
     assert res["epochs"] == 1 and res["train_windows"] > 0 and (run / "best.pt").is_file()
+
+
+def test_the_first_line_describes_the_run_not_the_preset(synth, tmp_path, capsys, monkeypatch):
+    """`--pretrained none --epochs 1` was announced as the preset's 16 pretraining epochs and 12 of
+    training (#42)."""
+    monkeypatch.setattr(stam.train, "cuda_available", lambda: False)
+    assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "r"), "--dry-run", "--json",
+                     "--pretrained", "none", "--epochs", "1", "--model", "cnn", "--frames", "3"]) == 0
+    first = capsys.readouterr().err.splitlines()[0]
+    assert "using the cpu preset" in first
+    assert "cnn, windows of 3 frames" in first and "backbone from random weights" in first
+    assert "trained for 1 epoch " in first and "pretrained on single frames" not in first
+    assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "r"), "--dry-run", "--json",
+                     "--pretrained", str(tmp_path / "b.pt"), "--set", "start=zero"]) == 0
+    first = capsys.readouterr().err.splitlines()[0]
+    assert f"backbone from {tmp_path / 'b.pt'}" in first and "from frame 0" in first

@@ -7,7 +7,8 @@ import pytest
 from gelsim.errors import GelsimError
 from stam import cli
 from stam.data import (DEFAULT_ONSET_THRESHOLD, ONSET_DRIFT_FACTOR, SCORE_PERCENTILE, TactileDataset,
-                       WindowDataset, change_score, contact_scores, detect_onset, load_manifest, thumbnails)
+                       WindowDataset, change_score, contact_scores, detect_onset, load_manifest, model_input,
+                       thumbnails)
 
 
 def _copy_manifest(src, dst, **changes):
@@ -173,7 +174,7 @@ def test_cache_means_no_second_decode(synth, tmp_path, monkeypatch):
     seq = data.sequences[0]
     first = np.array(data.frames(seq, 64))
     assert first.shape == (10, 64, 64, 3) and first.dtype == np.uint8
-    assert (tmp_path / "cache" / "64px" / f"{seq.id}.npy").is_file()
+    assert (tmp_path / "cache" / "64px" / f"{seq.id}-{data.cache_key(seq)}.npy").is_file()
 
     def no_decode(path):
         raise AssertionError("video decoded twice")
@@ -183,6 +184,24 @@ def test_cache_means_no_second_decode(synth, tmp_path, monkeypatch):
     monkeypatch.setattr(gelsim.video, "read_video", no_decode)
     np.testing.assert_array_equal(np.array(TactileDataset(synth, cache_dir=tmp_path / "cache").frames(seq, 64)), first)
     assert not list((tmp_path / "cache" / "64px").glob(".*partial*"))
+
+
+def test_a_video_changed_since_is_not_read_from_the_cache(synth, tmp_path):
+    """The frame cache was keyed by the sequence id alone: a video copied over afterwards (another
+    sequence's here) kept being read from its stale cache (#42)."""
+    from gelsim.video import read_video
+
+    root = tmp_path / "data"
+    shutil.copytree(synth, root)
+    data = TactileDataset(root, cache_dir=tmp_path / "cache")
+    a, b = data.sequences[0], data.sequences[-1]
+    old = np.array(data.frames(a, 64))
+    shutil.copyfile(b.video, a.video)                   # a new file: another size or modification time
+    fresh = TactileDataset(root, cache_dir=tmp_path / "cache")
+    new = np.array(fresh.frames(fresh.sequences[0], 64))
+    assert not np.array_equal(new, old)
+    np.testing.assert_array_equal(new, np.array(fresh.frames(fresh.sequences[-1], 64)))
+    assert np.array_equal(new, np.stack([model_input(f, 64) for f in read_video(b.video)]))
 
 
 def test_crop_keeps_the_centre_at_higher_resolution(synth, tmp_path):

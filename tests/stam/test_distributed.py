@@ -124,3 +124,27 @@ def test_ranks_with_other_arguments_stop_with_one_line(synth, preset, tmp_path, 
     assert "seed: 0 on rank 0, 1 on rank 1" in lines[0]
     assert err1.strip() == "" and out0 == "" and out1 == ""
     assert not (tmp_path / "run" / "pretrain").exists()    # nothing trained or written
+
+
+def test_a_truncated_video_is_one_line_on_every_rank(synth, preset, tmp_path):
+    """Rank 0 pretrains and meets the truncated video while rank 1 waits: rank 1 printed a 30-line gloo
+    traceback (#42). Now each rank says one line, rank 1 with rank 0's reason (torchrun's agent keeps
+    the job's store); torchrun's own summary of the failed job follows them."""
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(synth, data)
+    manifest = json.loads((data / "manifest.json").read_text())
+    video = data / next(s["video"] for s in manifest["sequences"] if s["split"] == "train")
+    video.write_bytes(video.read_bytes()[: video.stat().st_size // 3])
+    cmd = [TORCHRUN, "--standalone", "--nproc-per-node", "2", "-m", "stam", "train", "--data", str(data),
+           "--out", str(tmp_path / "run"), "--preset", str(preset), "--set", "threads=1"]
+    r = subprocess.run(cmd, capture_output=True, text=True, env=_env(), timeout=300)
+    assert r.returncode != 0
+    lines = r.stderr.splitlines()
+    ours = [line for line in lines if line.startswith("stam: error:")]
+    assert len(ours) == 2, r.stderr[-3000:]
+    assert any(line.startswith(f"stam: error: {video}: cannot decode video") for line in ours)
+    assert any(line.startswith("stam: error: rank 1 of 2 stopped: rank 0 failed: ") and str(video) in line
+               for line in ours), ours
+    assert not [line for line in lines if line.startswith("[rank")], r.stderr[-3000:]   # no rank's traceback

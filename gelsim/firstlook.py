@@ -1,0 +1,118 @@
+"""The first look: a few fabric families pressed into the gel at 960x720, each frame beside what the contact
+changed in it (the frame minus the flat gel's, contrast stretched), so that a newcomer sees the weave, the
+contact and the markers move where a frame alone shows a few DN of texture on a grey gel.
+
+``gelsim generate`` writes it with its previews (:func:`write_first_look`): ``previews/first_look.png``
+(every family at half scale, one row each) and ``previews/first_look/fNNN-<family>.png`` (each at
+full 960x720, the frame and its difference side by side). The README shows the sheet.
+"""
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .atomic import write_png
+from .sensor import SensorProfile, load_profile
+
+#: One fabric per family, chosen to show unlike surfaces: a twill's diagonal, a knit's loops, a
+#: corduroy's wales, a leather's grain (catalog ids; any id of gelsim/assets/fabrics works).
+FABRICS = (21, 58, 65, 88)
+#: The press, N: the middle of the dataset's hand-held 1-4 N (gelsim/assets/motions.toml).
+FORCE_N = 2.5
+#: The camera's resolution, px (the ViTac camera's 960x720).
+RESOLUTION = (960, 720)
+#: The difference is stretched so that this percentile of its magnitude reaches full scale (a few
+#: marker edges may clip).
+STRETCH_PERCENTILE = 99.5
+FIRST_LOOK_DIR = "first_look"
+
+
+def _label(img: np.ndarray, lines: list[str], scale: float) -> np.ndarray:
+    """``img`` with ``lines`` in white on a black outline from its top-left corner."""
+    out = img.copy()
+    step = round(30 * scale)
+    for i, text in enumerate(lines):
+        x, y = round(10 * scale), step * (i + 1)
+        thick = max(1, round(1.5 * scale))
+        # the outline as the same strokes shifted (a thicker stroke would widen OpenCV's glyph advances)
+        for dx, dy in ((-1, -1), (-1, 1), (1, -1), (1, 1), (0, 2), (2, 0), (0, -2), (-2, 0)):
+            cv2.putText(out, text, (x + dx, y + dy), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick, cv2.LINE_AA)
+        cv2.putText(out, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
+    return out
+
+
+def stretched_difference(frame: np.ndarray, flat: np.ndarray) -> tuple[np.ndarray, float]:
+    """``frame - flat`` per channel, mapped to uint8 around mid-grey 128 with the gain that takes its
+    :data:`STRETCH_PERCENTILE` magnitude to 127 (returned with the image: how much it was stretched)."""
+    diff = frame.astype(np.float32) - flat.astype(np.float32)
+    scale = float(np.percentile(np.abs(diff), STRETCH_PERCENTILE))
+    gain = 127.0 / max(scale, 1.0)
+    return np.clip(128.0 + diff * gain, 0, 255).astype(np.uint8), gain
+
+
+def first_look_frames(fabrics=FABRICS, profile: str | Path | SensorProfile = "vitac", *, force_n: float = FORCE_N,
+                      fidelity: str = "balanced", seed: int = 0) -> list[dict]:
+    """Per fabric: ``{"fabric", "name", "family", "frame", "difference", "gain", "force_n"}``; ``frame`` is
+    the uint8 RGB camera frame at :data:`RESOLUTION` of the fabric pressed with ``force_n`` N, and
+    ``difference`` that frame minus the flat gel's (same sensor unit, markers and noise draw: what the
+    contact changed), stretched by ``gain`` (:func:`stretched_difference`)."""
+    from .cli.render_cmd import make_object
+    from .frame import render_frame
+
+    prof = profile if isinstance(profile, SensorProfile) else load_profile(profile)
+    prof = prof.with_resolution(*RESOLUTION)
+    flat, _ = render_frame(make_object(None, "sphere", 4.0), prof, fidelity, force_n=0.0, seed=seed)
+    out = []
+    for fid in fabrics:
+        obj = make_object(int(fid), None, 4.0)
+        rgb, info = render_frame(obj, prof, fidelity, force_n=force_n, seed=seed)
+        diff, gain = stretched_difference(rgb, flat)
+        out.append({"fabric": int(fid), "name": obj.fabric.name, "family": obj.fabric.family, "frame": rgb,
+                    "difference": diff, "gain": gain, "force_n": info["imprint"]["normal_force_n"]})
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _cached_looks(fabrics: tuple[int, ...], profile: str) -> list[dict]:
+    """:func:`first_look_frames` of a shipped profile, once per process (4-8 s; a process that generates
+    several datasets, such as a test run, pays it once; the arrays are read only)."""
+    return first_look_frames(fabrics, profile)
+
+
+def panels(look: dict, scale: float = 1.0) -> np.ndarray:
+    """One fabric's frame and its labelled difference side by side, scaled by ``scale``."""
+    def size(img):
+        return cv2.resize(img, (round(img.shape[1] * scale), round(img.shape[0] * scale)),
+                          interpolation=cv2.INTER_AREA) if scale != 1.0 else img
+
+    text = 0.8 * max(scale, 0.5)
+    left = _label(size(look["frame"]), [f"{look['fabric']} {look['name']} ({look['family']}), {look['force_n']:.1f} N",
+                                        "camera frame, as in the dataset"], text)
+    right = _label(size(look["difference"]), ["frame minus the flat gel (same noise),",
+                                              f"contrast stretched x{look['gain']:.0f}"], text)
+    return np.concatenate([left, right], axis=1)
+
+
+def write_first_look(previews_dir: Path, manifest: dict | None = None, *, fabrics=FABRICS) -> list[Path]:
+    """Write the first look into ``previews_dir`` (see the module docstring) for the dataset's sensor
+    (``manifest``'s profile when it is a shipped one, else vitac); returns the paths written."""
+    from .sensor import list_profiles
+
+    name = ((manifest or {}).get("profile") or {}).get("name")
+    prof = name if name in list_profiles() else "vitac"
+    looks = _cached_looks(tuple(int(f) for f in fabrics), prof)
+    previews_dir = Path(previews_dir)
+    folder = previews_dir / FIRST_LOOK_DIR
+    folder.mkdir(parents=True, exist_ok=True)
+    written = []
+    for look in looks:
+        p = folder / f"f{look['fabric']:03d}-{look['family']}.png"
+        write_png(p, panels(look))
+        written.append(p)
+    sheet = np.concatenate([panels(look, 0.5) for look in looks], axis=0)
+    p = previews_dir / "first_look.png"
+    write_png(p, sheet)
+    return [p, *written]

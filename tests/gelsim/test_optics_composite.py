@@ -1,0 +1,128 @@
+"""gelsim.optics.composite: the optics' order written once, run by the numpy Renderer and the torch
+BatchRenderer; a stage added to the list (its numpy and its torch kernel) runs in its place on both."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gelsim.optics import Renderer
+from gelsim.optics import composite as C
+from gelsim.optics.ops.readout import to_uint8
+
+from test_optics import marker_grid, sphere_dent  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def small(vitac):
+    return vitac.with_resolution(160)
+
+
+def test_the_order_of_the_stages():
+    assert [s.name for s in C.STAGES] == ["markers", "area average", "readout"]
+    assert [s.final for s in C.STAGES] == [False, False, True]          # the readout last
+    assert [s.banded for s in C.STAGES] == [True, False, True]          # the average needs the whole frame
+    for stage in C.STAGES:
+        assert not getattr(stage, "__abstractmethods__", None), stage    # numpy and torch kernels both
+
+
+class Gain(C.Stage):
+    """A nuisance for the test: the frame times a gain drawn per frame (an LED's flicker, say)."""
+
+    name = "gain"
+
+    def draw(self, rng, noise):
+        return float(rng().uniform(0.6, 0.9))
+
+    def prepare(self, frame, draw):
+        return None if draw is None else np.float32(draw)
+
+    def apply(self, rows, y0, state):
+        rows *= state
+        return rows
+
+    def apply_torch(self, frames, batch, draws):
+        import torch
+
+        g = torch.tensor([1.0 if d is None else d for d in draws], dtype=frames.dtype, device=frames.device)
+        return frames * g[:, None, None, None]
+
+
+class Exposure(C.Stage):
+    """Another: the frame scaled so that its mean is 100 DN (an auto-exposure: it needs the whole frame)."""
+
+    name = "exposure"
+    banded = False
+
+    def prepare(self, frame, draw):
+        return self
+
+    def apply(self, rows, y0, state):
+        return (rows * np.float32(100.0 / rows.mean(dtype=np.float64))).astype(np.float32)
+
+    def apply_torch(self, frames, batch, draws):
+        return frames * (100.0 / frames.double().mean(dim=(1, 2, 3), keepdim=True)).float()
+
+
+def test_a_stage_added_to_the_list_runs_in_its_place(small, monkeypatch):
+    d = sphere_dent(small, 1.5, 0.3)
+    corners, _ = marker_grid(small)
+    plain = Renderer(small, seed=1)
+    monkeypatch.setattr(C, "STAGES", (C.Markers, Gain, C.AreaAverage, C.Readout))
+    r = Renderer(small, seed=1)
+    assert [s.name for s in r.stages] == ["markers", "gain", "area average", "readout"]
+    for seed, depth in ((5, d), (6, None)):
+        g = np.float32(np.random.default_rng(seed).uniform(0.6, 0.9))       # drawn first, before the noise
+        want = plain.render_float(depth, corners) * g
+        np.testing.assert_array_equal(r.render(depth, corners, seed=seed, noise=False), to_uint8(want))
+        rng = np.random.default_rng(seed)
+        rng.uniform(0.6, 0.9)
+        np.testing.assert_array_equal(r.render(depth, corners, seed=seed), plain.optics.noise.apply(want, rng))
+    # render_float draws nothing: the gain is not applied there
+    np.testing.assert_array_equal(r.render_float(d, corners), plain.render_float(d, corners))
+
+
+def test_a_stage_that_needs_the_whole_frame(small, monkeypatch):
+    d = sphere_dent(small, 1.5, 0.3)
+    corners, _ = marker_grid(small)
+    plain = Renderer(small, seed=1)
+    monkeypatch.setattr(C, "STAGES", (C.Markers, C.AreaAverage, Exposure, C.Readout))
+    r = Renderer(small, seed=1)
+    for depth in (d, None, None):
+        f = plain.render_float(depth, corners)
+        want = (f * np.float32(100.0 / f.mean(dtype=np.float64))).astype(np.float32)
+        np.testing.assert_array_equal(r.render_float(depth, corners), want)
+        np.testing.assert_array_equal(r.render(depth, corners, seed=3), plain.optics.noise.apply(want, 3))
+
+
+def test_both_backends_run_an_added_stage(small, monkeypatch):
+    pytest.importorskip("torch")
+    from gelsim.optics.torch_backend import TOL_MAX_UINT8_DN, TOL_MEAN_DN, BatchRenderer
+
+    monkeypatch.setattr(C, "STAGES", (C.Markers, Gain, C.AreaAverage, Exposure, C.Readout))
+    fast = Renderer(small, seed=2)
+    batch = BatchRenderer(Renderer(small, "torch", seed=2))
+    depths = [sphere_dent(small, 1.5, 0.3), None, sphere_dent(small, 1.0, 0.5, center_mm=(1.0, 0.5))]
+    corners, _ = marker_grid(small)
+    rng_fast, rng_torch = np.random.default_rng(4), np.random.default_rng(4)
+    want = [fast.render(d, corners, seed=rng_fast) for d in depths]
+    got = batch.render(depths, [corners] * 3, [rng_torch] * 3)
+    for a, b in zip(want, got):
+        diff = np.abs(a.astype(int) - b.astype(int))
+        assert diff.max() <= TOL_MAX_UINT8_DN and diff.mean() < TOL_MEAN_DN        # the backends' tolerance
+    assert rng_fast.integers(1 << 30) == rng_torch.integers(1 << 30)    # the same draws, in the same order
+    monkeypatch.setattr(C, "STAGES", (C.Markers, C.AreaAverage, C.Readout))
+    rng = np.random.default_rng(4)
+    plain = Renderer(small, seed=2).render(depths[0], corners, seed=rng)
+    assert np.abs(want[0].astype(int) - plain).mean() > 5.0                # the added stages do change the frame
+
+
+def test_check_depth_names_the_problem():
+    from gelsim.errors import GelsimError
+
+    with pytest.raises(GelsimError, match="shape"):
+        C.check_depth(np.zeros((3, 4), np.float32), (4, 3))
+    with pytest.raises(GelsimError, match="NaN"):
+        C.check_depth(np.full((2, 2), np.nan, np.float32), (2, 2))
+    with pytest.raises(GelsimError, match="negative"):
+        C.check_depth(np.full((2, 2), -0.1, np.float32), (2, 2))
+    assert C.check_depth(np.full((2, 2), -1e-5, np.float32), (2, 2)).min() == 0.0     # float error clipped
