@@ -39,6 +39,12 @@ FLAT_BLUR = 0.25        # the change is blurred by a Gaussian of this fraction o
 FLAT_MIN_DISK_PX = 2.0  # a disk under 2 px holds too few pixels for three planes: refused
 FLAT_REACH = 0.75       # the search stays within 0.75 contact radii of the annotated centre (the
                         # Mini's annotations are up to 0.46 radii off; as the registration's reach)
+# A flat point is a press's only where the colour turns steeply around it: by at least FLAT_MIN_TURN_DN
+# from the point to the disk's edge (slope FLAT_SLOPE; the smaller singular value of J times the disk's
+# radius). Measured: the Mini pack's presses turn by 42-49 DN, a synthetic Mini press at 320x240 by
+# 27-31 DN; the R1.5 pack's by 2-9 DN (too little to place them against its flat tops' +-17 DN across
+# the field); a point found 1.5 contact radii off a synthetic press (outside it) by 2.8 DN.
+FLAT_MIN_TURN_DN = 10.0
 FLAT_ITERS = 30         # Gauss-Newton steps at most (the Mini's presses converge in 3-6)
 FLAT_TOL_PX = 0.01      # converged when a step is below this, px
 
@@ -107,6 +113,10 @@ def flat_point(delta: np.ndarray, start_px, reach_px: float, disk_px: float) -> 
             return (f"the point where the colour change vanishes lies beyond {reach_px:.1f} px of the "
                     f"annotated centre")
         if float(np.hypot(*step)) < FLAT_TOL_PX:
+            turn = float(sv[-1]) * disk_px
+            if turn < FLAT_MIN_TURN_DN:
+                return (f"the colour turns by only {turn:.1f} DN around the point where it vanishes, at "
+                        f"({c[0]:.1f}, {c[1]:.1f}) px (a press's centre turns by {FLAT_MIN_TURN_DN:g} or more)")
             resid = delta[py, px].astype(np.float64) - design @ coef
             rms = float(np.sqrt((resid ** 2).mean()))
             left = a + jac @ step                                 # the change at the final point

@@ -266,6 +266,7 @@ class RealismRecord:
     annotated_skill: float | None = param(None, lo=-100.0, hi=1.0,
                                           doc="with detected centres: the skill at the pack's annotated ones")
     annotated_skill_ci95: tuple[float, float] | None = param(None, doc="its 95% interval")
+
     def validate(self, where: str) -> None:
         if self.centres not in ("annotated", "detected"):
             raise GelsimError(f"{where}: centres {self.centres!r} is not 'annotated' or 'detected'; fix it")

@@ -83,12 +83,15 @@ def _flat(d: dict, prefix: str = ""):
 
 
 NOT_IN_FILE = "default: not set in the profile's file"
+NO_SOURCE = "no comment beside it (see the file's header)"
+LABELS = ("name", "description")     # what a profile calls itself: no physical value, no source
 
 
 def profile_sources(name: str) -> dict:
     """What ``gelsim sensors show NAME --json`` prints: ``name``, ``file``, ``header`` (the file's leading
     comment), ``parameters`` (``{"key", "value", "source"}`` for every parameter: the comment beside it
-    in the file, or NOT_IN_FILE) and ``realism`` (assets/realism.toml's record, or None)."""
+    in the file; NO_SOURCE where the file sets it without one, NOT_IN_FILE where it does not set it; the
+    profile's ``name`` and ``description`` are labels) and ``realism`` (assets/realism.toml's record, or None)."""
     import dataclasses
     from pathlib import Path
 
@@ -103,7 +106,13 @@ def profile_sources(name: str) -> dict:
         if not line.startswith("#"):
             break
         header.append(line.lstrip("#").strip())
-    params = [{"key": k, "value": v, "source": notes.get(k) or NOT_IN_FILE}
+
+    def source(key):
+        if key in LABELS:
+            return "label"
+        return notes[key] or NO_SOURCE if key in notes else NOT_IN_FILE
+
+    params = [{"key": k, "value": v, "source": source(k)}
               for k, v in _flat({k: v for k, v in to_dict(p).items() if k != "source"})]
     rec = realism_records().get(p.name)
     return {"name": p.name, "file": str(p.source), "header": "\n".join(header), "parameters": params,
