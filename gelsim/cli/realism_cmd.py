@@ -18,7 +18,11 @@ def register(sub) -> None:
             "Fit a sensor profile to a data pack of real ball presses (an .npz with f0, imgs,\n"
             "touch_center, touch_radius, colours stored BGR as OpenCV writes them; the format of\n"
             "taxim's calibration set). Writes PROFILE (.toml) and, beside it, PROFILE-background.png\n"
-            "and PROFILE-shading.npz. Only the selected frames are used."),
+            "and PROFILE-shading.npz. Only the selected frames are used. The presses are placed at the\n"
+            "pack's annotated centres, or, where registering the fitted presses against each other shows\n"
+            "those are off, at each frame's flat point (gelsim.centres: found in that frame alone). The\n"
+            "held-out frames are scored there, with the annotated and the registered scores (the pose\n"
+            "fitted: an upper bound) beside it; each skill with its 95% interval over the presses."),
     )
     c.add_argument("datapack", metavar="DATAPACK", help="data pack .npz, or 'r15' / 'mini': taxim 1.4.1's GelSight "
                                                         "R1.5 / Mini set, fetched once into ~/.cache/gelsim")
