@@ -1,6 +1,8 @@
 """gelsim.centres: the flat-point detector finds where a ball was pressed from each frame alone (#44)."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -94,3 +96,38 @@ def test_realism_with_detected_centres_on_bad_packs_one_line_each(synthetic, tmp
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "Traceback" not in err, err
         assert all(w in err for w in words) and "--centres annotated" in err, err
+
+
+@pytest.mark.parametrize("applied, moved_by, expect", [
+    (False, 0.0, ("annotated", "annotated")),             # the annotation holds: kept, detector unused
+    (True, 0.0, ("detected", "detected")),                # off, and the flat points agree with the registration
+    (True, 3.0, ("annotated", "registered")),             # off, but the flat points disagree: scored as annotated
+])
+def test_choose_centres_never_places_scored_presses_with_the_model(synthetic, monkeypatch, applied, moved_by, expect):
+    """gelsim.calibrate.choose_centres decides on the fitted frames (even) only; the scored frames (odd)
+    get the annotation or their own flat points, never the registration (#44). The registration is
+    stood in for by the truth plus a common shift (which it cannot see) and, for the third case, a
+    scatter between the presses of 3.5 px RMS about their mean."""
+    import gelsim.calibrate as cal
+
+    prof, pack, truth = synthetic
+    scatter = moved_by * np.array([[1.0, 0.0], [0.0, 0.0], [-1.0, 1.0], [0.0, 0.0], [0.0, -1.0], [0.0, 0.0]])
+
+    def fake_register(p, frames, mm, ball, log=None):
+        idx = p.select(frames)
+        cents = p.centers_px.copy()
+        cents[idx] = truth[idx] + [5.0, -2.0] + scatter[idx]
+        return dataclasses.replace(p, centers_px=cents), {"applied": applied, "explained": 0.9 if applied else 0.1}
+
+    monkeypatch.setattr(cal, "register_presses", fake_register)
+    got = cal.choose_centres(pack, "even", prof.image.mm_per_px, BALL_MM)
+    assert (got["headline"], got["fit"]) == expect and got["fit_idx"] == [0, 2, 4]
+    odd = [1, 3, 5]
+    detected = detect_centres(pack, prof.image.mm_per_px, BALL_MM)["centres_px"]
+    want_odd = detected[odd] if expect[0] == "detected" else pack.centers_px[odd]
+    np.testing.assert_array_equal(got["centres_px"][odd], want_odd)
+    if expect == ("detected", "detected"):
+        assert got["detection"]["agreement_px"] < 1.0
+        np.testing.assert_allclose(got["detection"]["common_shift_px"], [-5.0, 2.0], atol=1.0)
+    if expect[1] == "registered":
+        assert got["detection"]["agreement_px"] > 1.0 and "px RMS" in got["detection"]["reason"]
