@@ -78,7 +78,8 @@ def colour_change(frame: np.ndarray, f0: np.ndarray, disk_px: float) -> np.ndarr
 def flat_point(delta: np.ndarray, start_px, reach_px: float, disk_px: float) -> FlatPoint | str:
     """The flat point of one press: ``delta`` the blurred colour change (:func:`colour_change`),
     searched within ``reach_px`` of ``start_px`` (x, y). Returns a :class:`FlatPoint`, or a string that
-    says why none was found (the fit left the search window, a flat colour change, no convergence).
+    says why none was found (the fit left the search window, a flat colour change, a colour that turns by
+    under FLAT_MIN_TURN_DN around the point, no convergence).
 
     The first guess is the pixel of the window where the change is smallest against its surroundings
     (``|delta|^2`` over its Gaussian average at ``disk_px``): the dark point where the colours meet."""
