@@ -14,9 +14,9 @@ OLD=$(cd "$1" && pwd); NEW=$(cd "$2" && pwd); W=${3:-$(mktemp -d)}
 PY=$(cd "$(dirname "$0")/.." && pwd)/.venv/bin/python
 gen() {  # tree, out, args...
   local t=$1 o=$2; shift 2
-  PYTHONPATH=$t "$PY" -m gelsim generate --out "$o" --no-previews --workers 1 "$@" > "$o.log" 2>&1 || { echo "failed: $o (see $o.log)"; exit 1; }
+  # (run from the tree itself: `python -m` puts the working directory ahead of PYTHONPATH)
+  (cd "$t" && PYTHONPATH=$t "$PY" -m gelsim generate --out "$o" --no-previews --workers 1 "$@" > "$o.log" 2>&1) || { echo "failed: $o (see $o.log)"; exit 1; }
 }
-digest() { (cd "$1" && find videos labels -type f | sort | xargs sha256sum | sha256sum | cut -c1-16); }
 status=0
 while read -r name args; do
   gen "$OLD" "$W/old-$name" $args; gen "$NEW" "$W/new-$name" $args
