@@ -32,6 +32,7 @@ from scipy import sparse
 from scipy.sparse.linalg import LinearOperator, cg, splu, spsolve
 
 from .atomic import atomic_write_npz, atomic_write_text, write_png
+from .centres import detect_centres
 from .errors import GelsimError
 from .optics.lut import normal_xy
 from .optics.ops.coarse import coarse_features
@@ -567,8 +568,6 @@ def choose_centres(pack: DataPack, frames: str, mm_per_px: float, ball_diameter_
     point), ``reason`` (why not, or why not used), ``agreement_px`` (RMS against the registration on
     ``frames`` after the common shift), ``common_shift_px`` (detected minus registered, mean) and
     ``centres_px`` (N, 2; NaN where none)}."""
-    from .centres import detect_centres
-
     log = log or (lambda msg: None)
     idx = pack.select(frames)
     moved, registration = register_presses(pack, frames, mm_per_px, ball_diameter_mm, log)
