@@ -67,10 +67,16 @@ def test_same_bytes_for_any_batch_and_workers(made):
 
 
 def test_labels_agree_with_the_numpy_path_within_the_stated_tolerance(made):
-    ref, dev = load_manifest(made / "numpy"), load_manifest(made / "b1")
+    _assert_labels_agree(made / "numpy", made / "b1")
+
+
+def _assert_labels_agree(numpy_root: Path, device_root: Path) -> None:
+    """Every sequence's labels: the schema's keys, dtypes and shapes; the physics' byte for byte; the imprint's
+    within :data:`TOLERANCE`, the markers' within :data:`TOL_PX`."""
+    ref, dev = load_manifest(numpy_root), load_manifest(device_root)
     touched_frames = 0
     for r, d in zip(ref["sequences"], dev["sequences"]):
-        a, b = _labels(made / "numpy", r), _labels(made / "b1", d)
+        a, b = _labels(numpy_root, r), _labels(device_root, d)
         assert list(a) == list(b)                                   # the schema's keys, in its order
         assert all(a[k].dtype == b[k].dtype and a[k].shape == b[k].shape for k in a)
         for k in PHYSICS_KEYS:
@@ -139,3 +145,17 @@ def test_a_device_dataset_is_not_resumed_by_the_optics_stages(made, capsys):
     capsys.readouterr()
     assert _gen(made / "b1", "--backend", "torch") == 2
     assert "(stages)" in capsys.readouterr().err
+
+
+def test_cuda_dataset_same_bytes_for_any_batch_and_labels_within_tolerance(made, tmp_path):  # pragma: no cover
+    """On a GPU: the dataset made on CUDA is the same bytes for any --batch and --workers, its labels within the
+    stated tolerance of the numpy path's, and its manifest names the GPU."""
+    if not torch.cuda.is_available():
+        pytest.skip("no CUDA device here (CI has none)")
+    cuda = ["--backend", "torch", "--stages", "all", "--device", "cuda"]
+    assert _gen(tmp_path / "g1", *cuda, "--batch", "1") == 0
+    assert _gen(tmp_path / "g8", *cuda, "--batch", "8", workers=2) == 0
+    g1, g8 = load_manifest(tmp_path / "g1"), load_manifest(tmp_path / "g8")
+    assert g1["sequences"] == g8["sequences"]
+    assert [d.split(" ")[0] for d in g1["render"]["devices"]] == ["cuda:0"]
+    _assert_labels_agree(made / "numpy", tmp_path / "g1")
