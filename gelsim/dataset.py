@@ -534,6 +534,7 @@ def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None
     other members are written already, so that each sequence is made in its own group). Returns their records,
     whose stage times are the group's shared by frames (the CPU part, ``fabric`` and ``physics``, their own)."""
     from .device.frame import prepare_sequence, render_sequences
+    from .optics.torch_backend import DEFAULT_BATCH
     from .sinks import VideoSink
     from .stream import FrameRecord, stage_clock
     from .video import video_path
@@ -552,22 +553,16 @@ def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None
     with contextlib.ExitStack() as stack:
         writers = {i: stack.enter_context(VideoSink(paths[s.id], fmt=config.format, fps=profile.image.fps_hz))
                    for i, s in enumerate(specs) if s.id in write}
-        encode = [0.0] * len(specs)
 
         def sink(frames, where):
             for f, (i, step) in zip(frames, where):
                 if i in writers:
-                    t = stage_clock()
                     writers[i].write(FrameRecord(step, None, None, None, f, {}, {}))
-                    encode[i] += stage_clock() - t
-
-        from .optics.torch_backend import DEFAULT_BATCH
 
         out = render_sequences(prepared, profile, fidelity, renderer, sensor_seed=config.seed, sink=sink,
                                sync=False, optics_batch=config.batch or DEFAULT_BATCH)
-        for i, v in writers.items():
+        for v in writers.values():
             v.close()
-            encode[i] += v.seconds["encode"] - encode[i]
     wall = time.perf_counter() - t0
     frames = sum(p.motion.num_frames for p in prepared)
     device = _device_name(renderer)
@@ -582,7 +577,7 @@ def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None
         timings = dict(prep.seconds)
         for k, v in out["seconds"].items():
             timings[k] = timings.get(k, 0.0) + v * share
-        timings["encode"] = encode[i] + stage_clock() - te
+        timings["encode"] = writers[i].seconds["encode"] + stage_clock() - te
         records.append(_record(spec, prep.motion, root, paths[spec.id], lpath, labels, timings, wall * share,
                                device))
     return records
