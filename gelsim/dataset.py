@@ -317,12 +317,12 @@ def check_out_dir(root: str | Path, options: dict) -> dict | None:
         raise StaleOutput(f"--out {root} holds a dataset made with other options ({', '.join(diff)}); "
                           "rerun with the same options to resume, choose another --out, or add --replace-stale to set it "
                           "aside and start anew")
-    diff = _library_difference(m.get("libraries"))
-    if diff:
+    what, diff = _made_otherwise(m)
+    if what == "libraries":
         raise StaleOutput(f"--out {root} was made with other library versions ({diff}), which give other bytes "
                           "from the same seed; resume it where those are installed, choose another --out, or add "
                           "--replace-stale to set it aside and start anew")
-    if _other_source(m):
+    if what == "source":
         fix = "" if m.get("complete") else "finish it with the code that began it, "
         raise StaleOutput(f"--out {root} was made by other gelsim code or assets (its manifest's source digest "
                           f"differs), which give other sequences from the same seed; {fix}choose another --out, or "
@@ -778,10 +778,16 @@ def ray_group(config: GenerateConfig, root: str, job: tuple[list[SequenceSpec], 
     return [done.get(i) or new[i] for i in ids]
 
 
-def _other_source(manifest: dict) -> bool:
-    """Whether ``manifest`` records other gelsim code or assets than this process's (a manifest from before
-    the ``source`` field records none: not other)."""
-    return manifest.get("source", source_digest()) != source_digest()
+def _made_otherwise(manifest: dict) -> tuple[str | None, str]:
+    """What of this process differs from what made ``manifest``'s dataset, first found: ``("libraries",
+    the versions that differ)``, ``("source", "")`` for other gelsim code or assets (a manifest from before
+    the ``source`` field records none: not other), or ``(None, "")``."""
+    diff = _library_difference(manifest.get("libraries"))
+    if diff:
+        return "libraries", diff
+    if manifest.get("source", source_digest()) != source_digest():
+        return "source", ""
+    return None, ""
 
 
 def _check_node_libraries(root: str) -> None:
@@ -790,13 +796,12 @@ def _check_node_libraries(root: str) -> None:
     naming them."""
     from .cluster import node_description
 
-    m = load_manifest(root)
-    diff = _library_difference(m.get("libraries"))
-    if diff:
+    what, diff = _made_otherwise(load_manifest(root))
+    if what == "libraries":
         raise GelsimError(f"Ray node {node_description()} has other library versions than the dataset's ({diff}), "
                           "which give other bytes from the same seed; install the same versions on every node "
                           "(make install)")
-    if _other_source(m):
+    if what == "source":
         raise GelsimError(f"Ray node {node_description()} has other gelsim code or assets than the dataset's (the "
                           "manifest's source digest differs); install the same commit on every node (make install)")
 
