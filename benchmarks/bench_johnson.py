@@ -18,7 +18,7 @@ import time
 
 from gelsim.cli import run_script
 from gelsim.fidelity import get_fidelity
-from gelsim.gel import johnson
+from gelsim.gel import johnson, wave_check
 from gelsim.runtime import configure_worker
 from gelsim.sensor import load_profile
 
@@ -46,7 +46,7 @@ def main() -> int:
         for kind in ("1d", "2d"):
             for L in (float(v) for v in args.wavelengths.split(",")):
                 for s in PRESSURES:
-                    r = johnson.press_wave(base, fid, kind, L, s)
+                    r = wave_check.press_wave(base, fid, kind, L, s)
                     r["model"] = name
                     rows.append(r)
     summary = []

@@ -7,9 +7,10 @@
 #   3. benchmarks/bench_device.py: imprint and whole-frame frames/s at 320x240 and 960x720 (sequences in step on
 #      the GPU; physics and patches prepared on the CPU, their CPU cost per frame reported beside);
 #   4. benchmarks/bench_device.py --sensors: batched MuJoCo sensor renders/s at N = 1, 16, 256, 1024, 4096, 320x240;
-#   5. a bounded `gelsim generate --backend torch --device cuda` (GPU_SESSION_FABRICS fabrics x 5 sequences,
-#      960x720) for end-to-end frames/s with its stage times (the numpy imprint until the frame stream is wired
-#      to the device imprint: the baseline);
+#   5. two bounded `gelsim generate --backend torch --device cuda` runs of one dataset (GPU_SESSION_FABRICS fabrics x
+#      5 sequences, 960x720, GPU_SESSION_WORKERS workers, default all cores) for end-to-end frames/s with their stage
+#      times: `--stages optics` (the torch optics, the numpy imprint: the baseline), then `--stages all` (the whole
+#      frame on the GPU, a fabric's sequences in step; docs/device.md);
 #   6. if at least 45 s are left, one epoch of `stam train --preset paper` on what step 5 made, for its epoch time;
 #   7. a summary table, printed last (also $OUT/summary.txt).
 # Everything lands in $OUT (at most 8 files): machine.txt, cuda_tests.txt, bench_frame.json, bench_sensor.json,
@@ -19,7 +20,7 @@
 #   bash benchmarks/gpu_session.sh 2>&1 | tee "$OUT/session.log"
 # Switches (environment): GPU_SESSION_DEVICE (cuda; cpu runs every step on the CPU, for checking the script
 # here), GPU_SESSION_SMALL=1 (tiny sizes: the script's own test), DEADLINE (seconds, default 420),
-# GPU_SESSION_FABRICS (default 20), PY (default python3).
+# GPU_SESSION_FABRICS (default 20), GPU_SESSION_WORKERS (generate's, default nproc), PY (default python3).
 #
 # A bare machine lacks mujoco and av: they travel as Python 3.12 wheels in .whl/ (ignored by git; name ".whl"
 # in the run's carry), fetched here with
@@ -66,49 +67,60 @@ fi
 
 echo "== tests on $DEV ($((SECONDS - START)) s)"
 if [ "$DEV" = cuda ]; then
-  SEL="cuda"; FILES="tests/gelsim/test_device_imprint.py tests/gelsim/test_device_markers.py tests/gelsim/test_device_frame.py tests/gelsim/test_device_sensor.py tests/gelsim/test_torch_backend.py"
+  SEL="cuda"; FILES="tests/gelsim/test_device_imprint.py tests/gelsim/test_device_markers.py tests/gelsim/test_device_frame.py tests/gelsim/test_device_sensor.py tests/gelsim/test_torch_backend.py tests/gelsim/test_dataset_device.py"
 else
   SEL="cpu and not slow"; FILES="tests/gelsim/test_device_markers.py tests/gelsim/test_device_frame.py"
 fi
-T=$(budget 100 300)
+T=$(budget 100 320)
 timeout -s INT "$T" $PY -m pytest -q -p no:cacheprovider $FILES -k "$SEL" >"$OUT/cuda_tests.txt" 2>&1
 rc=$?; tail -3 "$OUT/cuda_tests.txt"; note "tests ($SEL): exit $rc, $(tail -1 "$OUT/cuda_tests.txt" | tr -d '=')"
 
 echo "== bench_device frames ($((SECONDS - START)) s)"
-T=$(budget 120 180)
+T=$(budget 100 220)
 timeout -s INT "$T" $PY benchmarks/bench_device.py --device "$DEV" --resolutions "$RESOLUTIONS" --batch "$BATCH" \
   --distinct "$DISTINCT" --frames "$FRAMES" --reps "$REPS" --out "$OUT/bench_frame.json"
 note "bench frames: exit $?"
 
 echo "== bench_device sensors ($((SECONDS - START)) s)"
-T=$(budget 60 120)
+T=$(budget 50 170)
 timeout -s INT "$T" $PY benchmarks/bench_device.py --device "$DEV" --resolutions "" --sensors "$SENSORS" --reps "$REPS" \
   --out "$OUT/bench_sensor.json"
 note "bench sensors: exit $?"
 
-echo "== generate --backend torch --device $DEV ($((SECONDS - START)) s)"
-rm -rf /tmp/gpu_gen
-T=$(budget 90 60)
-GEN_RES=$([ "$SMALL" = 1 ] && echo "--resolution 160x120 --fabrics 2" || echo "--fabrics $FABRICS")
-gstart=$SECONDS
-{ timeout -s INT "$T" $PY -m gelsim generate $GEN_RES --sequences-per-fabric "$SEQ" --backend torch --device "$DEV" \
-    --out /tmp/gpu_gen --no-previews 2>&1 | tail -5
-  echo "exit ${PIPESTATUS[0]} after $((SECONDS - gstart)) s"
-  $PY - "$((SECONDS - gstart))" <<'EOF'
+# Two runs of the same dataset: --stages optics (the torch optics, the numpy imprint: the baseline) into
+# /tmp/gpu_gen (stam's input below), then --stages all (the whole frame on the device) into /tmp/gpu_gen_all.
+gen_run() {  # NAME DIR BUDGET RESERVE EXTRA...
+  local name=$1 dir=$2 b=$3 r=$4; shift 4
+  echo "== generate --backend torch --device $DEV $* ($((SECONDS - START)) s)"
+  rm -rf "$dir"
+  local T; T=$(budget "$b" "$r")
+  local gstart=$SECONDS
+  { echo "-- $name"
+    timeout -s INT "$T" $PY -m gelsim generate $GEN_RES --sequences-per-fabric "$SEQ" --backend torch --device "$DEV" \
+      --workers "$GEN_WORKERS" "$@" --out "$dir" --no-previews 2>&1 | tail -5
+    echo "exit ${PIPESTATUS[0]} after $((SECONDS - gstart)) s"
+    $PY - "$((SECONDS - gstart))" "$dir" "$name" <<'EOF'
 import json, sys
 from pathlib import Path
 from gelsim.dataset import load_manifest, summarize_timings
-root, wall = Path("/tmp/gpu_gen"), float(sys.argv[1])
+wall, root, name = float(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
 m = load_manifest(root)
 t = summarize_timings(root, m)
-t.update(wall_s=wall, complete=m.get("complete"), frames_per_s=round(t.get("frames", 0) / wall, 1))
+t.update(name=name, wall_s=wall, complete=m.get("complete"), frames_per_s=round(t.get("frames", 0) / wall, 1),
+         render=m.get("render"))
 print("GENERATE", json.dumps(t))
 EOF
-} >"$OUT/generate.txt" 2>&1
-cat "$OUT/generate.txt" | tail -4
-note "generate: $(grep -E '^exit' "$OUT/generate.txt")"
+  } >>"$OUT/generate.txt" 2>&1
+  tail -3 "$OUT/generate.txt"
+  note "generate $name: $(grep -E '^exit' "$OUT/generate.txt" | tail -1)"
+}
+GEN_RES=$([ "$SMALL" = 1 ] && echo "--resolution 160x120 --fabrics 2" || echo "--fabrics $FABRICS")
+GEN_WORKERS=${GPU_SESSION_WORKERS:-$(nproc)}
+: >"$OUT/generate.txt"
+gen_run optics /tmp/gpu_gen 60 110 --stages optics
+gen_run all /tmp/gpu_gen_all 60 50 --stages all
 
-if [ "$(left)" -ge 45 ] && grep -q '"complete": true' "$OUT/generate.txt"; then
+if [ "$(left)" -ge 45 ] && grep -q '"name": "optics".*"complete": true' "$OUT/generate.txt"; then
   echo "== stam train --preset paper, one epoch ($((SECONDS - START)) s)"
   T=$(budget 200 8)
   { timeout -s INT "$T" $PY -m stam train --preset paper --data /tmp/gpu_gen --out /tmp/stam_paper --model stam --frames 2 \
@@ -150,7 +162,8 @@ if g.exists():
         if line.startswith("GENERATE "):
             t = json.loads(line[9:])
             st = t.get("stages_ms_per_frame", {})
-            rows.append(f"generate: {t.get('frames')} frames in {t.get('wall_s')} s = {t.get('frames_per_s')} frames/s; "
+            rows.append(f"generate --stages {t.get('name')} on {(t.get('render') or {}).get('devices')}: "
+                        f"{t.get('frames')} frames in {t.get('wall_s')} s = {t.get('frames_per_s')} frames/s; "
                         "per frame per worker, ms: " + ", ".join(f"{k} {v:.1f}" for k, v in st.items()))
 s = out / "stam.txt"
 if s.exists():

@@ -32,6 +32,7 @@ from scipy import sparse
 from scipy.sparse.linalg import LinearOperator, cg, splu, spsolve
 
 from .atomic import atomic_write_npz, atomic_write_text, write_png
+from .centres import detect_centres
 from .errors import GelsimError
 from .optics.lut import normal_xy
 from .optics.ops.coarse import coarse_features
@@ -451,20 +452,17 @@ def register_presses(pack: DataPack, frames: str, mm_per_px: float, ball_diamete
     shift; on a synthetic pack with known centres the whole set drifted by 3.5 px without this, while
     the centres relative to each other came out within 0.7 px). The registration is *applied*
     only if it removes at least REGISTER_MIN_EXPLAINED of the left-out misfit (:func:`_misfit`, mean
-    over ``frames``) that the annotated centres leave; otherwise every centre stays as annotated. When
-    applied, the other frames (the held-out ones) are each registered against the table of all of
-    ``frames``, so that a held-out frame's centre depends on the fitted frames and on itself only.
-    Radii are kept.
+    over ``frames``) that the annotated centres leave; otherwise every centre stays as annotated. The
+    other frames keep their annotated centres (:func:`register_heldout` places them against a table
+    of ``frames``). Radii are kept.
 
-    Returns the pack (new centres, or ``pack`` itself) and a report: ``applied``; ``explained`` (the
-    fraction of the misfit removed); ``misfit_dn2`` (annotated, registered); ``found_offsets_px``
-    (N, 2) (registered minus annotated; zero for held-out frames when not applied);
-    ``offsets_px`` (those applied: zero when not); ``rms_offset_px`` (of the found offsets: fitted
-    frames, held-out frames, None without held-out frames); ``rounds``; ``stride`` (px between
-    samples)."""
+    Returns the pack (new centres for ``frames``, or ``pack`` itself) and a report: ``applied``;
+    ``explained`` (the fraction of the misfit removed); ``misfit_dn2`` (annotated, registered);
+    ``found_offsets_px`` (N, 2) (registered minus annotated; zero for the other frames);
+    ``offsets_px`` (those applied: zero when not); ``rms_offset_px`` (of the found offsets over
+    ``frames``); ``rounds``; ``stride`` (px between samples)."""
     log = log or (lambda msg: None)
     idx = pack.select(frames)
-    rest = [i for i in range(len(pack.imgs)) if i not in set(idx)]
     bg = upsample_background(fit_background(pack.f0), pack.shape)
     annotated = pack.centers_px.astype(np.float64)
     stride = max(1, int(np.median(pack.radii_px) / REGISTER_SAMPLES))
@@ -505,24 +503,109 @@ def register_presses(pack: DataPack, frames: str, mm_per_px: float, ball_diamete
     # a press with no sampled pixel inside its contact (a contact under a pixel wide) scores inf: no verdict
     explained = 1.0 - after / before if math.isfinite(before) and math.isfinite(after) and before > 0 else 0.0
     applied = explained >= REGISTER_MIN_EXPLAINED
-    if applied and rest:
-        t = fit_table([_cap_samples(pack, j, cents[j], bg, mm_per_px, ball_diameter_mm, stride) for j in idx],
-                      smooth=REGISTER_SMOOTH)
-        for i in rest:
-            cents[i] = _place(pack, i, t, bg, mm_per_px, ball_diameter_mm, stride)[0]
     found = cents - annotated
-    rms = [float(np.sqrt((found[s] ** 2).sum(axis=1).mean())) if len(s) else None for s in (idx, rest)]
-    if not applied:
-        rms[1] = None
-    verdict = (f"moved by {rms[0]:.1f} px RMS (fitted frames)" + (f", {rms[1]:.1f} px (held-out frames)" if rms[1]
-               is not None else "") if applied else f"kept as annotated (moving them {rms[0]:.1f} px RMS would "
-               f"remove only {100 * explained:.0f}% < {100 * REGISTER_MIN_EXPLAINED:.0f}%)")
+    rms = float(np.sqrt((found[idx] ** 2).sum(axis=1).mean()))
+    verdict = (f"moved by {rms:.1f} px RMS" if applied else f"kept as annotated (moving them {rms:.1f} px RMS "
+               f"would remove only {100 * explained:.0f}% < {100 * REGISTER_MIN_EXPLAINED:.0f}%)")
     log(f"press centres: the annotated ones leave a misfit of {before:.1f} DN^2 inside the contacts, registered "
         f"ones {after:.1f} ({100 * explained:.0f}% less): {verdict}")
     report = {"applied": applied, "explained": explained, "misfit_dn2": [before, after],
               "found_offsets_px": found.tolist(), "offsets_px": (found if applied else 0.0 * found).tolist(),
               "rms_offset_px": rms, "rounds": rounds, "stride": stride}
     return (dataclasses.replace(pack, centers_px=cents) if applied else pack), report
+
+
+def register_heldout(pack: DataPack, fit_idx: list[int], fit_centres: np.ndarray, targets: list[int],
+                     mm_per_px: float, ball_diameter_mm: float) -> np.ndarray:
+    """The centres (N, 2) px of ``pack`` with each of ``targets`` moved to where its press agrees best
+    (:func:`_place`, searched around its centre in ``pack``) with the table fitted on the ``fit_idx``
+    frames placed at ``fit_centres`` (N, 2) (the depth term on the exact normals inside the contacts,
+    as :func:`register_presses`). The other rows are ``pack``'s. The pose of each target is fitted to
+    that table: scores at these centres are an upper bound of what the table's model can reach."""
+    bg = upsample_background(fit_background(pack.f0), pack.shape)
+    stride = max(1, int(np.median(pack.radii_px) / REGISTER_SAMPLES))
+    t = fit_table([_cap_samples(pack, j, fit_centres[j], bg, mm_per_px, ball_diameter_mm, stride) for j in fit_idx],
+                  smooth=REGISTER_SMOOTH)
+    cents = pack.centers_px.astype(np.float64).copy()
+    for i in targets:
+        cents[i] = _place(pack, i, t, bg, mm_per_px, ball_diameter_mm, stride)[0]
+    return cents
+
+
+# --------------------------------------------------------------------------------------
+# Centres: where the fitted and the scored presses are placed
+# --------------------------------------------------------------------------------------
+# A held-out score must not place its presses with the model it scores (issue #44): registering a
+# scored press against the fitted frames' table fits two numbers per frame to that model. The scored
+# presses are placed from a source independent of it: the pack's annotation where it holds (the
+# registration among the fitted frames cannot remove half the misfit it leaves), else the flat-point
+# detector (gelsim.centres) where it agrees with that registration on the fitted frames: within
+# DETECT_AGREE_PX RMS once their common shift is removed (the registration fixes the presses only
+# relative to each other). On the GelSight Mini pack the detector agrees to 0.37 px (even frames);
+# on the R1.5 it would not (8 px: its annotation holds). 1 px is a fifth of the Mini's 5-10 px
+# over which its colour wheel turns.
+DETECT_AGREE_PX = 1.0
+CENTRE_SOURCES = ("annotated", "detected", "registered")
+# what a calibrated profile's header says of the centres its fitted frames were placed at
+CENTRES_NOTE = {
+    "annotated": "Press centres as annotated (registration would not remove half their misfit).",
+    "detected": "Press centres detected in each frame (gelsim.centres: the flat point, where the colour change\n"
+                "vanishes), as the pack's annotation is off and the detector agrees with the registration.",
+    "registered": "Press centres registered from the images (gelsim.calibrate.register_presses), as the pack's\n"
+                  "annotation is off; the flat-point detector did not agree with them.",
+}
+
+
+def choose_centres(pack: DataPack, frames: str, mm_per_px: float, ball_diameter_mm: float, log=None) -> dict:
+    """Where ``pack``'s presses are placed: ``frames`` ("even", "odd", "all") are the fitted ones (the
+    only frames the choice looks at besides each frame's own detection), the others are scored.
+
+    Returns ``{"headline": "annotated" | "detected"`` (the independent source the scored frames are
+    placed by), ``"fit"``: the source the fitted frames are placed by (the headline's, or "registered"
+    where the annotation is off and the detector disagrees), ``"centres_px"`` (N, 2) (the fitted frames
+    at the fit source, the others at the headline's), ``"fit_idx"``, ``"registration"`` (the report of
+    :func:`register_presses` on ``frames``) and ``"detection"``: ``available`` (every frame has a flat
+    point), ``reason`` (why not, or why not used), ``agreement_px`` (RMS against the registration on
+    ``frames`` after the common shift), ``common_shift_px`` (detected minus registered, mean) and
+    ``centres_px`` (N, 2; NaN where none)}."""
+    log = log or (lambda msg: None)
+    idx = pack.select(frames)
+    moved, registration = register_presses(pack, frames, mm_per_px, ball_diameter_mm, log)
+    det = {"available": False, "reason": None, "agreement_px": None, "common_shift_px": None, "centres_px": None}
+    try:
+        found = detect_centres(pack, mm_per_px, ball_diameter_mm)
+    except GelsimError as e:
+        det["reason"] = str(e)
+    else:
+        det["centres_px"] = [[float(v) if np.isfinite(v) else None for v in c] for c in found["centres_px"]]
+        det["points"] = [None if q is None else dataclasses.asdict(q) for q in found["points"]]
+        if found["failures"]:
+            i, why = next(iter(found["failures"].items()))
+            det["reason"] = f"{len(found['failures'])} frames have no flat point (frame {i}: {why})"
+        else:
+            det["available"] = True
+            diff = found["centres_px"][idx] - moved.centers_px[idx]
+            shift = diff.mean(axis=0)
+            det["common_shift_px"] = shift.tolist()
+            det["agreement_px"] = float(np.sqrt(((diff - shift) ** 2).sum(axis=1).mean()))
+    annotated = pack.centers_px.astype(np.float64)
+    if not registration["applied"]:
+        head, fit, cents = "annotated", "annotated", annotated.copy()
+        if det["available"] and det["reason"] is None:
+            det["reason"] = "not needed: the annotation holds"
+    elif det["available"] and det["agreement_px"] <= DETECT_AGREE_PX:
+        head, fit, cents = "detected", "detected", np.asarray(det["centres_px"], np.float64)
+    else:
+        if det["available"]:
+            det["reason"] = (f"its centres are {det['agreement_px']:.1f} px RMS from the registration's on the fitted "
+                             f"frames (more than {DETECT_AGREE_PX:g})")
+        head, fit, cents = "annotated", "registered", annotated.copy()
+        cents[idx] = moved.centers_px[idx]
+    log(f"press centres: fitted frames {fit}, scored frames {head}"
+        + (f" (flat points {det['agreement_px']:.2f} px RMS from the registration)" if head == "detected" else "")
+        + (f"; flat-point detector not used: {det['reason']}" if head != "detected" and det["reason"] else ""))
+    return {"headline": head, "fit": fit, "centres_px": cents, "fit_idx": idx,
+            "registration": registration, "detection": det}
 
 
 # --------------------------------------------------------------------------------------
@@ -647,31 +730,65 @@ def check_pack(pack: DataPack, frames: str, mm_per_px: float, ball_diameter_mm: 
     return idx, held
 
 
-def heldout_score(profile_path: str | Path, pack: DataPack, frames: str, ball_diameter_mm: float,
-                  registration: dict | None = None) -> dict | None:
-    """The written profile scored on the frames it was not fitted on (:func:`gelsim.realism.evaluate`):
-    None for ``frames == "all"``. The balls are placed where the calibration placed them: at the
-    registered centres if ``registration`` (:func:`register_presses`' report) was applied (the result
-    then also holds ``"annotated"``, the same score at the pack's annotated centres), else at the
-    annotated ones. ``"centres"`` says which."""
+def centre_scores(profile, pack: DataPack, scored: str, choice: dict, ball_diameter_mm: float,
+                  sources=CENTRE_SOURCES, keep: int | None = None) -> dict:
+    """``profile`` scored on ``pack``'s ``scored`` frames (:func:`gelsim.realism.evaluate`) with the
+    presses placed by each of ``sources``: ``"annotated"`` (the pack's centres), ``"detected"`` (each
+    frame's flat point; GelsimError where a frame has none), ``"registered"`` (each scored press
+    registered against the table of ``choice``'s fitted frames at their centres, starting from the
+    headline's centre: the pose fitted, an upper bound; its dict holds ``"offsets_px"`` from there).
+    ``choice`` is :func:`choose_centres`' result. Returns ``{source: evaluate's dict}``; ``keep`` (a
+    frame index) adds the example frame to the headline's."""
     from .realism import evaluate
+
+    idx = pack.select(scored)
+    head = choice["headline"]
+    det = choice["detection"]
+    out = {}
+    for src in sources:
+        if src == "annotated":
+            cents = pack.centers_px
+        elif src == "detected":
+            if not det["available"]:
+                raise GelsimError(f"the flat-point detector found no centres here ({det['reason']}); use "
+                                  f"--centres annotated or auto")
+            cents = np.asarray(det["centres_px"], np.float64)
+        elif src == "registered":
+            start = dataclasses.replace(pack, centers_px=np.asarray(choice["centres_px"], np.float64))
+            cents = register_heldout(start, choice["fit_idx"], start.centers_px, idx, profile.image.mm_per_px,
+                                     ball_diameter_mm)
+        else:
+            raise GelsimError(f"unknown centres {src!r}; choose one of {', '.join(CENTRE_SOURCES)}")
+        res = evaluate(profile, dataclasses.replace(pack, centers_px=np.asarray(cents, np.float64)), scored,
+                       ball_diameter_mm=ball_diameter_mm, keep=keep if src == head else None)
+        if src == "registered":
+            res["offsets_px"] = (cents - np.asarray(choice["centres_px"], np.float64))[idx].tolist()
+        out[src] = res
+    return out
+
+
+def headline_report(scores: dict, chosen: str) -> dict:
+    """The ``chosen`` score of :func:`centre_scores`' ``scores`` with ``"centres"`` (its source) and the
+    others beside it under ``"compare"`` (without example frames)."""
+    rep = dict(scores[chosen], centres=chosen)
+    rep["compare"] = {k: {kk: vv for kk, vv in v.items() if kk != "example"} for k, v in scores.items() if k != chosen}
+    return rep
+
+
+def heldout_score(profile_path: str | Path, pack: DataPack, frames: str, ball_diameter_mm: float,
+                  choice: dict) -> dict | None:
+    """The written profile scored on the frames it was not fitted on, the presses placed by ``choice``
+    (:func:`choose_centres` on ``frames``): :func:`headline_report` of the headline's centres, with the
+    annotated ones (where they are not the headline) and the registered ones (an upper bound) beside
+    it; None for ``frames == "all"``."""
     from .sensor import load_profile
 
     other = HELDOUT[frames]
     if other is None:
         return None
-    prof = load_profile(profile_path)
-
-    def score(p):
-        res = evaluate(prof, p, other, ball_diameter_mm=ball_diameter_mm)
-        res.pop("example", None)
-        res["frame_set"] = other
-        return res
-
-    if registration is None or not registration["applied"]:
-        return dict(score(pack), centres="annotated")
-    moved = dataclasses.replace(pack, centers_px=pack.centers_px + np.asarray(registration["offsets_px"], np.float64))
-    return dict(score(moved), centres="registered", annotated=score(pack))
+    sources = [choice["headline"]] + [s for s in ("annotated", "registered") if s != choice["headline"]]
+    scores = centre_scores(load_profile(profile_path), pack, other, choice, ball_diameter_mm, sources)
+    return dict(headline_report(scores, choice["headline"]), frame_set=other)
 
 
 def _carried_comments(base_profile, data: dict) -> dict[str, str]:
@@ -709,7 +826,8 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
     idx, _ = check_pack(pack, frames, mm_per_px, ball_diameter_mm)
     h, w = pack.shape
     log = log or (lambda msg: None)
-    pack, registration = register_presses(pack, frames, mm_per_px, ball_diameter_mm, log)
+    placed = choose_centres(pack, frames, mm_per_px, ball_diameter_mm, log)
+    pack = dataclasses.replace(pack, centers_px=placed["centres_px"])
     desc = description or (f"{name or out_path.stem}: {w}x{h} at {mm_per_px:g} mm/px, fitted by `gelsim calibrate` "
                            f"on {Path(pack.source).name or 'a data pack'}")
     prof = dataclasses.replace(
@@ -800,13 +918,11 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
               f"(mm_per_px {mm_per_px}, ball {ball_diameter_mm} mm). Fitted: background image, shading table,\n"
               f"gel thickness_mm and membrane_smoothing_mm, noise, shadows (one per LED: slope, penumbra, colour);\n"
               f"lights: azimuths from the table (for pyrender and the shadows).\n"
-              + ("Press centres registered from the images (gelsim.calibrate.register_presses: "
-                 f"{registration['rms_offset_px'][0]:.1f} px RMS from the annotation).\n"
-                 if registration["applied"] else "Press centres as annotated (registration would not help).\n")
+              + CENTRES_NOTE[placed["fit"]] + "\n"
               + 
               f"Other values come from the base profile, with their comments." + (f"\n{note}" if note else ""))
     atomic_write_text(out_path, dump_toml(data, header, _carried_comments(base_profile, data)))
     return {"profile": str(out_path), "background": str(bg_file), "table": str(lut_file),
-            "frames": idx, "best": best, "trials": trials, "registration": registration,
+            "frames": idx, "best": best, "trials": trials, "centres": placed,
             "noise": {"read_sigma_dn": read, "shot_gain": shot}}
 

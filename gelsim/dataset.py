@@ -58,6 +58,10 @@ class GenerateConfig:
     backend: str | None = None   # render backend (gelsim.optics.BACKENDS); None = the fidelity level's
     nuisance: str = "none"       # a level of gelsim/assets/nuisance.toml (docs/nuisance.md); "none": no stage runs
     nuisance_severity: float | None = None   # every stage of the level at this severity (0-4); None: the file's
+    # What runs on the torch backend's device: "optics" (the imprint, markers and labels from the numpy path,
+    # byte for byte) or "all" (the whole frame, gelsim.device: labels within its stated tolerance). What, not
+    # how: a dataset's labels differ between the two, so it is one of options().
+    stages: str = "optics"
     # Where and how many frames at a time the torch backend renders: how, not what (the same bytes for
     # any batch, the same dataset within the backend's tolerance on any device), so not in options().
     device: str | None = None    # None = the CPU
@@ -76,6 +80,14 @@ class GenerateConfig:
 
 #: GenerateConfig fields that say where the frames are rendered, not what they hold.
 PLACEMENT = ("device", "batch")
+#: ``--stages``: what the torch backend runs on its device (GenerateConfig.stages).
+STAGES = ("optics", "all")
+#: With ``--stages all``, sequences run in step on the device (frame t of each in one batch): a fabric's sequences
+#: (of one sensor unit), in groups of at most this many, as even as can be. A frame's device imprint depends on its
+#: batch's other frames by float rounding (docs/device.md), so the groups are fixed by the plan alone, never by
+#: ``--batch`` or ``--workers``: the same bytes however the dataset is run. 16 bounds a worker's memory at 960x720
+#: (16 patches, envelopes and imprint batches: a few GB on the CPU) while filling a GPU with a worker per core.
+MAX_LANES = 16
 
 
 # Sensor units a dataset may draw: each needs its own renderer in every worker (0.2-0.3 s and ~60 MB
@@ -227,6 +239,21 @@ def plan(config: GenerateConfig, catalog_size: int) -> list[SequenceSpec]:
                                       seed=s, num_frames=frames, precontact_frames=pre, split=str(split_of[i]),
                                       unit=unit))
     return specs
+
+
+def device_groups(specs: list[SequenceSpec]) -> list[list[SequenceSpec]]:
+    """The groups of sequences that ``--stages all`` runs in step, in plan order: each fabric's sequences of one
+    sensor unit, split into ceil(n / :data:`MAX_LANES`) groups as even as can be. A function of the plan only."""
+    by: dict[tuple[int, int], list[SequenceSpec]] = {}
+    for s in specs:
+        by.setdefault((s.fabric_id, s.unit), []).append(s)
+    groups = []
+    for members in by.values():
+        start = 0
+        for size in apportion(len(members), [1.0] * math.ceil(len(members) / MAX_LANES)):
+            groups.append(members[start:start + size])
+            start += size
+    return groups
 
 
 def check_frames(config: GenerateConfig) -> None:
@@ -422,9 +449,28 @@ def _renderer(profile):
                  device=config.device if backend == "torch" else None)
     if backend != "torch":
         return r
+    if config.stages == "all":
+        from .device.frame import DeviceRenderer
+
+        return DeviceRenderer(r)
     from .optics.torch_backend import BatchRenderer
 
     return BatchRenderer(r)
+
+
+def _device_name(renderer) -> str:
+    """Where this worker's frames are made, as a dataset records it: ``cpu`` for the numpy backends (``opengl``
+    for pyrender), the torch device for the torch backend (``cuda:0 (NVIDIA H200)``: its model named, as
+    ``--stages all``'s labels are the same bytes only on the same kind of device)."""
+    dev = getattr(renderer, "device", None)
+    if dev is None:
+        return "opengl" if getattr(renderer, "backend", None) == "pyrender" else "cpu"
+    if dev.type != "cuda":
+        return dev.type
+    import torch
+
+    index = dev.index if dev.index is not None else torch.cuda.current_device()
+    return f"cuda:{index} ({torch.cuda.get_device_name(index)})"
 
 
 def _unit(k: int):
@@ -462,9 +508,18 @@ def _frame_sinks(renderer, video: Path, fps: float, seed: int):
         yield SequenceOptions(sensor_seed=config.seed, outputs={"imprint", "markers"}, **nuisance), [device]
 
 
+def _motion(spec: SequenceSpec):
+    """The hand's motion of ``spec`` (its frame and pre-contact counts as planned)."""
+    from .motion import sample_motion
+
+    return sample_motion(spec.action, spec.seed, frames=(spec.num_frames, spec.num_frames),
+                         precontact=None if spec.precontact_frames is None
+                         else (spec.precontact_frames, spec.precontact_frames),
+                         ranges=_WORKER["ranges"])
+
+
 def generate_sequence(spec: SequenceSpec) -> dict:
     """Simulate, render, encode and record one sequence (in a worker). Returns its record."""
-    from .motion import sample_motion
     from .sequence import render_sequence
     from .sinks import drain
     from .stream import stage_clock
@@ -476,11 +531,7 @@ def generate_sequence(spec: SequenceSpec) -> dict:
     (profile, renderer), fidelity = _unit(spec.unit), w["fidelity"]
     fabric = w["catalog"][spec.fabric_id]
     t0 = time.perf_counter()
-    motion = sample_motion(spec.action, spec.seed,
-                           frames=(spec.num_frames, spec.num_frames),
-                           precontact=None if spec.precontact_frames is None
-                           else (spec.precontact_frames, spec.precontact_frames),
-                           ranges=w["ranges"])
+    motion = _motion(spec)
     vpath = root / video_path(spec.video_stem(), config.format)
     with _frame_sinks(renderer, vpath, profile.image.fps_hz, spec.seed) as (options, sinks):
         labels, timings = drain(render_sequence(fabric, motion, profile, fidelity, seed=spec.seed, options=options),
@@ -489,6 +540,70 @@ def generate_sequence(spec: SequenceSpec) -> dict:
     lpath = root / spec.labels_rel()
     atomic_write_npz(lpath, **labels)
     timings["encode"] = timings.get("encode", 0.0) + stage_clock() - te
+    return _record(spec, motion, root, vpath, lpath, labels, timings, time.perf_counter() - t0,
+                   _device_name(renderer))
+
+
+def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None) -> list[dict]:
+    """``--stages all``: simulate the sequences of one :func:`device_groups` group on the CPU, render them in step on
+    the device (:func:`gelsim.device.frame.render_sequences`: the imprint, labels, markers and frames), encode and
+    record each (in a worker). ``write``: the ids to write (default: all; a resumed run recomputes a group whose
+    other members are written already, so that each sequence is made in its own group). Returns their records,
+    whose stage times are the group's shared by frames (the CPU part, ``fabric`` and ``physics``, their own)."""
+    from .device.frame import prepare_sequence, render_sequences
+    from .optics.torch_backend import DEFAULT_BATCH
+    from .sinks import VideoSink
+    from .stream import FrameRecord, stage_clock
+    from .video import video_path
+
+    w = _WORKER
+    config: GenerateConfig = w["config"]
+    root: Path = w["root"]
+    (profile, renderer), fidelity = _unit(specs[0].unit), w["fidelity"]
+    fabric = w["catalog"][specs[0].fabric_id]
+    write = {s.id for s in specs} if write is None else set(write)
+    t0 = time.perf_counter()
+    prepared = []
+    for spec in specs:
+        prepared.append(prepare_sequence(fabric, _motion(spec), profile, fidelity, seed=spec.seed))
+    paths = {s.id: root / video_path(s.video_stem(), config.format) for s in specs if s.id in write}
+    with contextlib.ExitStack() as stack:
+        writers = {i: stack.enter_context(VideoSink(paths[s.id], fmt=config.format, fps=profile.image.fps_hz))
+                   for i, s in enumerate(specs) if s.id in write}
+
+        def sink(frames, where):
+            for f, (i, step) in zip(frames, where):
+                if i in writers:
+                    writers[i].write(FrameRecord(step, None, None, None, f, {}, {}))
+
+        out = render_sequences(prepared, profile, fidelity, renderer, sensor_seed=config.seed, sink=sink,
+                               sync=False, optics_batch=config.batch or DEFAULT_BATCH)
+        for v in writers.values():
+            v.close()
+    wall = time.perf_counter() - t0
+    frames = sum(p.motion.num_frames for p in prepared)
+    device = _device_name(renderer)
+    records = []
+    for i, (spec, prep, labels) in enumerate(zip(specs, prepared, out["labels"])):
+        if spec.id not in write:
+            continue
+        share = prep.motion.num_frames / frames
+        te = stage_clock()
+        lpath = root / spec.labels_rel()
+        atomic_write_npz(lpath, **labels)
+        timings = dict(prep.seconds)
+        for k, v in out["seconds"].items():
+            timings[k] = timings.get(k, 0.0) + v * share
+        timings["encode"] = writers[i].seconds["encode"] + stage_clock() - te
+        records.append(_record(spec, prep.motion, root, paths[spec.id], lpath, labels, timings, wall * share,
+                               device))
+    return records
+
+
+def _record(spec: SequenceSpec, motion, root: Path, vpath: Path, lpath: Path, labels: dict, timings: dict,
+            seconds: float, device: str) -> dict:
+    """Write and return the record of ``spec`` (its ``motion``), whose video and labels are in place: written
+    last, it marks the sequence finished."""
     in_contact = np.asarray(labels["in_contact"], bool)
     onset = int(np.argmax(in_contact)) if in_contact.any() else -1
     record = dict(id=spec.id, fabric_id=spec.fabric_id, action=spec.action, num_frames=motion.num_frames,
@@ -497,7 +612,7 @@ def generate_sequence(spec: SequenceSpec) -> dict:
                   sha256={"video": sha256_of(vpath), "labels": sha256_of(lpath)},
                   peak_force_n=float(np.max(labels["normal_force_n"])),
                   timings_s={k: round(v, 4) for k, v in timings.items()},
-                  seconds=round(time.perf_counter() - t0, 3))
+                  seconds=round(seconds, 3), device=device)
     if spec.unit >= 0:
         record["unit"] = spec.unit
     atomic_write_json(root / schema.record_path(spec.id), record)
@@ -517,8 +632,26 @@ def _manifest(config: GenerateConfig, profile, catalog, specs, records: dict[str
         profile={"name": profile.name, "width_px": profile.image.width_px, "height_px": profile.image.height_px,
                  "mm_per_px": profile.image.mm_per_px, "fps_hz": profile.image.fps_hz},
         fabrics=[{k: getattr(catalog[i], k) for k in schema.FABRIC_FIELDS} for i in fabric_ids],
-        sequences=seqs, libraries=library_versions(), source=source_digest(),
+        sequences=seqs, libraries=library_versions(), source=source_digest(), render=_render_section(config, records),
         **(_units_section(config, profile) if config.units else {}))
+
+
+def _render_section(config: GenerateConfig, records: dict[str, dict]) -> dict:
+    """The manifest's record of what made the frames and labels: the backend, what ran on its device
+    (``stages``), the devices that made the finished sequences (from their records: a dataset resumed
+    elsewhere lists each), torch's version for the torch backend, and where the labels come from."""
+    from .fidelity import get_fidelity
+
+    backend = config.render_backend(get_fidelity(config.fidelity))
+    out: dict[str, Any] = {"backend": backend, "stages": config.stages if backend == "torch" else "none",
+                           "devices": sorted({r["device"] for r in records.values() if "device" in r})}
+    if backend == "torch":
+        import torch
+
+        out["torch"] = torch.__version__
+    out["labels"] = ("device: gelsim.device, within gelsim.device.imprint.TOLERANCE of the numpy path"
+                     if backend == "torch" and config.stages == "all" else "numpy: the bit-exact reference")
+    return out
 
 
 def library_versions() -> dict[str, str]:
@@ -587,11 +720,19 @@ def check_render(config: GenerateConfig, fidelity) -> None:
 
     backend = config.render_backend(fidelity)
     check_choice("--backend", backend, BACKENDS)
+    check_choice("--stages", config.stages, STAGES)
     if backend != "torch":
-        if config.device is not None or config.batch is not None:
-            raise GelsimError(f"--device and --batch are for --backend torch, not {backend}; add --backend torch "
-                              "or drop them")
+        if config.device is not None or config.batch is not None or config.stages != "optics":
+            raise GelsimError(f"--device, --batch and --stages are for --backend torch, not {backend}; add "
+                              "--backend torch or drop them")
         return
+    if config.stages == "all" and (config.nuisance != "none" or config.nuisance_severity is not None):
+        raise GelsimError(f"--nuisance {config.nuisance} runs in the numpy frame stream and the torch optics, not in "
+                          "--stages all (the whole frame on the device); use --stages optics or drop --nuisance")
+    if config.stages == "all" and fidelity.imprint_model != "twoscale":
+        raise GelsimError(f"--stages all runs the twoscale imprint on the device (fidelity fast or balanced), not "
+                          f"{fidelity.name}'s {fidelity.imprint_model!r}; choose --fidelity fast or balanced, or "
+                          "--stages optics")
     if config.batch is not None and (isinstance(config.batch, bool) or not isinstance(config.batch, int)
                                      or config.batch < 1):
         raise GelsimError(f"--batch {config.batch!r} is invalid; give a whole number of frames >= 1")
@@ -646,6 +787,17 @@ def ray_sequences(config: GenerateConfig, root: str, specs: list[SequenceSpec]) 
     return [done.get(spec.id) or generate_sequence(spec) for spec in specs]
 
 
+def ray_group(config: GenerateConfig, root: str, job: tuple[list[SequenceSpec], list[str]]) -> list[dict]:
+    """``--stages all``'s Ray task: :func:`generate_group` of ``job`` (the group, the ids to write), set up as
+    :func:`ray_sequences`; the records of a retry's members already written are returned as they are."""
+    group, ids = job
+    ray_sequences(config, root, [])          # the worker's set-up and checks
+    done = _load_records(Path(root), [s for s in group if s.id in ids])
+    new = {r["id"]: r for r in generate_group(group, [i for i in ids if i not in done])} \
+        if any(i not in done for i in ids) else {}
+    return [done.get(i) or new[i] for i in ids]
+
+
 def _made_otherwise(manifest: dict) -> tuple[str | None, str]:
     """What of this process differs from what made ``manifest``'s dataset, first found: ``("libraries",
     the versions that differ)``, ``("source", "")`` for other gelsim code or assets (a manifest from before
@@ -686,6 +838,32 @@ def _pool_start_method() -> str:
     return "fork"
 
 
+def _group_jobs(todo: list[SequenceSpec], config: GenerateConfig) -> list[tuple[list[SequenceSpec], list[str]]]:
+    """``--stages all``'s jobs: (the whole group, its members still to do) for each group with any to do."""
+    ids = {s.id for s in todo}
+    groups = device_groups(plan(config, len(_catalog())))
+    return [(g, [s.id for s in g if s.id in ids]) for g in groups if any(s.id in ids for s in g)]
+
+
+def _group_job(job: tuple[list[SequenceSpec], list[str]]) -> list[dict]:
+    return generate_group(*job)
+
+
+def _flat(results, config: GenerateConfig):
+    """One record at a time from per-sequence results, or from ``--stages all``'s per-group lists."""
+    if config.stages != "all":
+        yield from results
+        return
+    for recs in results:
+        yield from recs
+
+
+def _catalog():
+    from .fabrics import load_catalog
+
+    return load_catalog()
+
+
 @contextlib.contextmanager
 def _sequence_results(config: GenerateConfig, root: Path, todo: list[SequenceSpec], workers: int | None, cluster):
     """The records of ``todo`` as they finish: from Ray tasks (``cluster``), in this process (one
@@ -693,22 +871,30 @@ def _sequence_results(config: GenerateConfig, root: Path, todo: list[SequenceSpe
     if cluster is not None:
         from .cluster import cluster_cpus, run_unordered
 
+        if config.stages == "all":   # a group per task (its members still to do written)
+            yield (rec for recs in run_unordered(cluster, ray_group, _group_jobs(todo, config),
+                                                 args=(config, str(root)), label=lambda job: _task_label(job[0]))
+                   for rec in recs)
+            return
         k = sequences_per_task(len(todo), cluster_cpus(cluster))
         tasks = [todo[i:i + k] for i in range(0, len(todo), k)]
         yield (rec for recs in run_unordered(cluster, ray_sequences, tasks, args=(config, str(root)),
                                              label=_task_label) for rec in recs)
         return
     workers = max(1, workers or os.cpu_count() or 1)
+    fn, jobs = generate_sequence, todo
+    if config.stages == "all":     # whole groups, each sequence written where it is still to do
+        fn, jobs = _group_job, _group_jobs(todo, config)
     if workers == 1:
         _worker_init(config, str(root))
-        yield map(generate_sequence, todo)
+        yield _flat(map(fn, jobs), config)
         return
     import multiprocessing as mp
 
     pool = mp.get_context(_pool_start_method()).Pool(workers, initializer=_worker_init,
                                                       initargs=(config, str(root)))
     try:
-        yield pool.imap_unordered(generate_sequence, todo, chunksize=1)
+        yield _flat(pool.imap_unordered(fn, jobs, chunksize=1), config)
     finally:
         pool.terminate()
         pool.join()

@@ -170,23 +170,57 @@ def to_dict(obj: Any) -> Any:
     return obj
 
 
-def toml_comments(path: str | Path) -> dict[str, str]:
-    """The trailing comments of a TOML file's ``key = value  # comment`` lines, by dotted key
-    (``"section.key"``; keys before any table: ``"key"``), for :func:`dump_toml` to keep them. Keys in
-    arrays of tables (``[[lights]]``) and lines with a string before the ``#`` are skipped."""
-    out: dict[str, str] = {}
-    section: str | None = ""
+def _split_comment(line: str) -> tuple[str, str | None]:
+    """``line`` split at its first ``#`` outside double quotes: (before, comment or None)."""
+    quoted = False
+    for i, ch in enumerate(line):
+        if ch == '"' and (i == 0 or line[i - 1] != "\\"):
+            quoted = not quoted
+        elif ch == "#" and not quoted:
+            return line[:i], line[i + 1:].strip()
+    return line, None
+
+
+def toml_entries(path: str | Path) -> list[tuple[str, str, str | None]]:
+    """Every ``key = value`` line of a TOML file, in order, as ``(dotted key, value text, comment)``:
+    keys in a ``[section]`` are ``"section.key"``, keys of the n-th ``[[name]]`` table ``"name[n].key"``;
+    the comment is the line's trailing one, continued by comment-only lines right below it that are
+    indented past the line's start (None without one)."""
+    out: list[tuple[str, str, str | None]] = []
+    section, counts = "", {}
+    last = None
     for line in Path(path).read_text().splitlines():
         s = line.strip()
+        if last is not None and s.startswith("#") and len(line) - len(line.lstrip()) > 0:
+            key, value, note = out[last]
+            out[last] = (key, value, f"{note} {s.lstrip('#').strip()}".strip())
+            continue
+        last = None
         if s.startswith("[["):
-            section = None
+            name = s.strip("[]").strip()
+            counts[name] = counts.get(name, -1) + 1
+            section = f"{name}[{counts[name]}]"
         elif s.startswith("["):
             section = s.strip("[]").strip()
-        elif section is not None and not s.startswith("#") and "=" in s and "#" in s:
-            value, note = s.split("#", 1)
-            if '"' not in value:
-                key = value.split("=", 1)[0].strip()
-                out[f"{section}.{key}" if section else key] = note.strip()
+        elif s and not s.startswith("#") and "=" in s:
+            before, note = _split_comment(s)
+            key, value = (t.strip() for t in before.split("=", 1))
+            out.append((f"{section}.{key}" if section else key, value, note))
+            if note is not None:
+                last = len(out) - 1
+    return out
+
+
+def toml_comments(path: str | Path) -> dict[str, str]:
+    """The trailing comments of a TOML file's ``key = value  # comment`` lines (with their continuation
+    lines, :func:`toml_entries`), by dotted key (``"section.key"``; keys before any table: ``"key"``), for
+    :func:`dump_toml` to keep them. Keys in arrays of tables (``[[lights]]``) and lines with a string
+    value are skipped."""
+    out: dict[str, str] = {}
+    for key, value, note in toml_entries(path):
+        if note is None or "[" in key or '"' in value:
+            continue
+        out[key] = note
     return out
 
 

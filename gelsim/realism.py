@@ -255,16 +255,29 @@ class RealismRecord:
     baseline_crop_l1_dn: float = param(lo=0.0, hi=255.0, doc="the background alone: crop L1, DN")
     small_slope_rms_dn: float = param(lo=0.0, hi=255.0, doc="small-slope RMS error, DN")
     baseline_small_slope_rms_dn: float = param(lo=0.0, hi=255.0, doc="the background alone: small-slope RMS, DN")
-    centres: str = param("annotated", doc="where the balls were placed: 'annotated' (the pack's contact centres) "
-                                          "or 'registered' (as `gelsim calibrate` registered them from the images)")
+    skill_ci95: tuple[float, float] = param(doc="95% interval of the skill, bootstrap over the scored presses")
+    registered_skill: float = param(lo=-100.0, hi=1.0, doc="the skill with each scored press registered against "
+                                                            "the fitted frames' table: the pose fitted, an upper "
+                                                            "bound, not a held-out figure")
+    registered_skill_ci95: tuple[float, float] = param(doc="its 95% interval")
+    centres: str = param("annotated", doc="where the scored balls were placed (the headline): 'annotated' (the "
+                                          "pack's contact centres) or 'detected' (each frame's flat point, "
+                                          "gelsim.centres); never from the scored model")
     annotated_skill: float | None = param(None, lo=-100.0, hi=1.0,
-                                          doc="with registered centres: the skill at the pack's annotated ones")
+                                          doc="with detected centres: the skill at the pack's annotated ones")
+    annotated_skill_ci95: tuple[float, float] | None = param(None, doc="its 95% interval")
 
     def validate(self, where: str) -> None:
-        if self.centres not in ("annotated", "registered"):
-            raise GelsimError(f"{where}: centres {self.centres!r} is not 'annotated' or 'registered'; fix it")
+        if self.centres not in ("annotated", "detected"):
+            raise GelsimError(f"{where}: centres {self.centres!r} is not 'annotated' or 'detected'; fix it")
         if (self.annotated_skill is None) != (self.centres == "annotated"):
-            raise GelsimError(f"{where}: give annotated_skill exactly when centres is 'registered'")
+            raise GelsimError(f"{where}: give annotated_skill exactly when centres is 'detected'")
+        if (self.annotated_skill is None) != (self.annotated_skill_ci95 is None):
+            raise GelsimError(f"{where}: give annotated_skill_ci95 with annotated_skill")
+        for name in ("skill", "annotated_skill", "registered_skill"):
+            v, ci = getattr(self, name), getattr(self, f"{name}_ci95")
+            if v is not None and not ci[0] <= v <= ci[1]:
+                raise GelsimError(f"{where}: {name} {v} lies outside its interval {list(ci)}; fix one of them")
 
 
 def realism_records(path: str | Path | None = None) -> dict[str, RealismRecord]:
@@ -325,10 +338,36 @@ def frame_metrics(sim: np.ndarray, real: np.ndarray, center_px, radius_px: float
     return {"crop": crop, "contact": contact, "contact_mse": mse}
 
 
+# Skill's interval: a percentile bootstrap over the scored presses (each resample draws as many presses
+# as were scored, with replacement, and takes 1 - sum MSE(sim) / sum MSE(background) over them).
+# 10,000 resamples put the Monte Carlo error of the 2.5% and 97.5% quantiles under 1% of the interval's
+# width; the seed is fixed so that the same frames give the same interval.
+BOOTSTRAP_RESAMPLES = 10_000
+BOOTSTRAP_SEED = 20200
+CI_LEVEL = 0.95
+
+
+def skill_interval(sim_mse, base_mse, level: float = CI_LEVEL, resamples: int = BOOTSTRAP_RESAMPLES,
+                   seed: int = BOOTSTRAP_SEED) -> list[float]:
+    """``[low, high]`` of the skill ``1 - sum(sim_mse) / sum(base_mse)`` over presses resampled with
+    replacement (``float (n,)`` each, one value per press: the contact disk's MSE)."""
+    sim = np.asarray(sim_mse, np.float64)
+    base = np.asarray(base_mse, np.float64)
+    if sim.shape != base.shape or sim.ndim != 1 or sim.size == 0:
+        raise GelsimError(f"skill_interval needs two equal (n,) arrays of per-press MSEs, got {sim.shape} and "
+                          f"{base.shape}")
+    draws = np.random.default_rng(seed).integers(0, sim.size, (resamples, sim.size))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reps = 1.0 - sim[draws].sum(axis=1) / base[draws].sum(axis=1)
+    lo, hi = np.quantile(reps[np.isfinite(reps)], [(1 - level) / 2, (1 + level) / 2])
+    return [float(lo), float(hi)]
+
+
 def summarize(per_frame: list[dict], base_frame: list[dict]) -> dict:
     """Means over frames of :func:`frame_metrics` results; PSNR from the mean MSE would weigh frames
     unevenly, so PSNR is the mean of the per-frame PSNRs (as the other metrics). Skill is
-    ``1 - sum MSE(sim) / sum MSE(background)`` over all frames' disks."""
+    ``1 - sum MSE(sim) / sum MSE(background)`` over all frames' disks, ``skill_ci95`` its 95%
+    interval over the frames (:func:`skill_interval`)."""
     def mean(rows, sect, key):
         return float(np.mean([r[sect][key] for r in rows]))
 
@@ -336,9 +375,10 @@ def summarize(per_frame: list[dict], base_frame: list[dict]) -> dict:
         return {s: {k: mean(rows, s, k) for k in ("ssim", "psnr", "l1")} for s in ("crop", "contact")}
 
     out = block(per_frame)
-    sim_mse = float(np.sum([r["contact_mse"] for r in per_frame]))
-    bg_mse = float(np.sum([r["contact_mse"] for r in base_frame]))
-    out["skill"] = 1.0 - sim_mse / bg_mse if bg_mse > 0 else 0.0
+    sim_mse = np.array([r["contact_mse"] for r in per_frame])
+    bg_mse = np.array([r["contact_mse"] for r in base_frame])
+    out["skill"] = 1.0 - float(sim_mse.sum()) / float(bg_mse.sum()) if bg_mse.sum() > 0 else 0.0
+    out["skill_ci95"] = skill_interval(sim_mse, bg_mse) if bg_mse.sum() > 0 else [0.0, 0.0]
     out["baseline"] = block(base_frame)
     out["baseline"]["skill"] = 0.0
     return out
@@ -467,7 +507,8 @@ def evaluate(profile, pack: DataPack, frames: str = "odd", *, ball_diameter_mm: 
     """Render each selected press with ``profile`` (noiseless: the expected frame) and score it.
 
     ``profile.image.mm_per_px`` sets the scale (pass a profile replaced with the pack's
-    scale). Returns :func:`summarize`'s dict plus ``"small_slope"`` (:func:`small_slope_summary`),
+    scale). Returns :func:`summarize`'s dict plus ``"per_frame"`` (each scored frame's index, centre
+    and contact MSEs, simulated and background), ``"small_slope"`` (:func:`small_slope_summary`),
     ``"frames"`` (count) and
     ``"ms_per_frame"`` (render time, imprint included); with ``keep`` the frame
     index ``keep`` is also returned as ``"example": (real, sim)`` uint8 RGB.
@@ -505,6 +546,9 @@ def evaluate(profile, pack: DataPack, frames: str = "odd", *, ball_diameter_mm: 
     finally:
         ren.close()
     out = summarize(sims, bases)
+    out["per_frame"] = [{"frame": i, "centre_px": [float(v) for v in pack.centers_px[i]],
+                         "contact_mse": a["contact_mse"], "baseline_contact_mse": b["contact_mse"]}
+                        for i, a, b in zip(idx, sims, bases)]
     out["small_slope"] = small_slope_summary(small)
     out["frames"] = len(idx)
     out["ms_per_frame"] = 1000.0 * t / max(1, len(idx))

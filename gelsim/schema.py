@@ -84,8 +84,10 @@ MANIFEST_FIELDS = ("format", "format_version", "complete", "generator_version", 
                    "catalog_version", "profile", "fabrics", "splits", "libraries", "sequences")
 #: Fields a manifest may hold between ``libraries`` and ``sequences``, added within FORMAT_VERSION 1 (older
 #: datasets lack them): ``source`` (2026-11-27), the digest of the code and assets that made the dataset
-#: (:func:`gelsim.provenance.source_digest`); ``unit_variation`` and ``units`` (``--units K``).
-OPTIONAL_MANIFEST_FIELDS = ("source", "unit_variation", "units")
+#: (:func:`gelsim.provenance.source_digest`); ``render`` (2026-11-28): the backend, what ran on its device
+#: (``--stages``), the devices that made the sequences and where the labels come from; ``unit_variation`` and
+#: ``units`` (``--units K``).
+OPTIONAL_MANIFEST_FIELDS = ("source", "render", "unit_variation", "units")
 #: The ``libraries`` entry: the packages whose version changes a dataset's bytes (OpenCV 4.14 and 5.0 give
 #: other fabric heightfields, so other contacts, labels and frames from the same seed).
 LIBRARIES = ("numpy", "scipy", "opencv", "numba", "mujoco", "av")

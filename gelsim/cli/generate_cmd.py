@@ -57,6 +57,13 @@ def register(sub) -> None:
                    help="renderer: fast (numpy/OpenCV), pyrender (OpenGL), or torch (the fast backend's optics "
                         f"in PyTorch, frames rendered in batches on --device; equal to fast within {TOL_MAX_DN:g} DN "
                         "before noise, the same labels) [default: the fidelity level's]")
+    p.add_argument("--stages", choices=["optics", "all"],
+                   help="with --backend torch: what runs on --device. optics: the camera image only; the imprint, "
+                        "markers and labels come from the numpy path, byte for byte. all: the whole frame after "
+                        "the physics (imprint, contact labels, markers, image; gelsim.device), a fabric's "
+                        "sequences in step, the physics on the CPU; labels within the stated tolerance of the "
+                        "numpy path's (docs/device.md), the same bytes on the same device. The manifest records "
+                        "the backend, the stages and the device [default: optics]")
     p.add_argument("--device", metavar="cpu|cuda",
                    help="with --backend torch: where the frames are rendered (cuda: on the GPU, while the CPU "
                         "simulates and encodes) [default: cpu]")
@@ -121,7 +128,7 @@ def config_from_args(args: argparse.Namespace):
              "precontact": lambda text: parse_range(text, "--precontact", lo=0),
              "resolution": parse_resolution}
     for name in ("fabrics", "sequences_per_fabric", "actions", "split", "frames", "precontact", "profile",
-                 "resolution", "fidelity", "seed", "format", "backend", "device", "batch", "nuisance",
+                 "resolution", "fidelity", "seed", "format", "backend", "stages", "device", "batch", "nuisance",
                  "nuisance_severity"):
         value = getattr(args, name)
         if value is not None:

@@ -18,7 +18,11 @@ def register(sub) -> None:
             "Fit a sensor profile to a data pack of real ball presses (an .npz with f0, imgs,\n"
             "touch_center, touch_radius, colours stored BGR as OpenCV writes them; the format of\n"
             "taxim's calibration set). Writes PROFILE (.toml) and, beside it, PROFILE-background.png\n"
-            "and PROFILE-shading.npz. Only the selected frames are used."),
+            "and PROFILE-shading.npz. Only the selected frames are used. The presses are placed at the\n"
+            "pack's annotated centres, or, where registering the fitted presses against each other shows\n"
+            "those are off, at each frame's flat point (gelsim.centres: found in that frame alone). The\n"
+            "held-out frames are scored there, with the annotated and the registered scores (the pose\n"
+            "fitted: an upper bound) beside it; each skill with its 95% interval over the presses."),
     )
     c.add_argument("datapack", metavar="DATAPACK", help="data pack .npz, or 'r15' / 'mini': taxim 1.4.1's GelSight "
                                                         "R1.5 / Mini set, fetched once into ~/.cache/gelsim")
@@ -44,8 +48,10 @@ def register(sub) -> None:
             "pressed to the depth that gives that contact radius), noiseless, with the fast backend,\n"
             "and compare with the real frame: SSIM/PSNR/L1 on a 400x400 crop around the contact,\n"
             "PSNR/L1 inside the disk of 1.5 contact radii (SSIM on its bounding box), and skill =\n"
-            "1 - MSE(sim)/MSE(background) in that disk. The background frame f0 as the prediction\n"
-            "is the baseline. Small slopes: on the ball's flat top (true slope < 0.2, where fabric\n"
+            "1 - MSE(sim)/MSE(background) in that disk, with its 95% interval (bootstrap over the\n"
+            "scored presses). The background frame f0 as the prediction is the baseline. The\n"
+            "headline places the balls from a source independent of the profile (--centres auto);\n"
+            "the scores at the annotated centres and at registered ones (an upper bound) follow. Small slopes: on the ball's flat top (true slope < 0.2, where fabric\n"
             "texture lies), the RMS difference of the colour change and its gain per unit slope,\n"
             "simulated over real, per channel."),
     )
@@ -58,11 +64,14 @@ def register(sub) -> None:
                    help="size of one pixel on the gel, mm [default: the profile's]")
     r.add_argument("--ball-diameter-mm", type=float, default=4.0, help="diameter of the pressed ball, mm")
     r.add_argument("--channel-order", default="bgr", choices=["bgr", "rgb"], help="colour order of the pack")
-    r.add_argument("--centres", default="annotated", choices=["annotated", "registered"],
-                   help="where each ball is placed: the pack's annotated contact centres, or as `gelsim calibrate` "
-                        "places them: registered from the images (odd frames against a table of the even ones, "
-                        "even against odd, all one left out at a time) when that removes most of the misfit the "
-                        "annotation leaves, else annotated")
+    r.add_argument("--centres", default="auto", choices=["auto", "annotated", "detected", "registered"],
+                   help="where the scored balls are placed for the headline score: auto = as `gelsim calibrate` "
+                        "places held-out frames, never from the scored profile (the pack's annotated centres where "
+                        "they hold, else each frame's flat point where that detector agrees with the registration "
+                        "of the other frames); detected = each frame's flat point (where the colour change "
+                        "vanishes); registered = each press registered against a table of the other frames "
+                        "(odd against even, even against odd): the pose fitted, an upper bound. The annotated "
+                        "and registered scores are printed beside the headline")
     r.add_argument("--out", default=None, metavar="FILE.png",
                    help="write real | simulated | 3 x |difference| of the first scored frame [default: none]")
     r.add_argument("--json", action="store_true", help="print one JSON document on stdout")
@@ -101,7 +110,7 @@ def run_calibrate(args) -> int:
                     ball_diameter_mm=args.ball_diameter_mm, log=log, description=args.description,
                     note=NOTES.get(args.datapack, ""))
     log("scoring the held-out frames")
-    rep["heldout"] = heldout_score(rep["profile"], pack, args.frames, args.ball_diameter_mm, rep["registration"])
+    rep["heldout"] = heldout_score(rep["profile"], pack, args.frames, args.ball_diameter_mm, rep["centres"])
     if args.json:
         print_json(rep)
         return 0
@@ -111,40 +120,40 @@ def run_calibrate(args) -> int:
           f"shadow slope {b['shadow_tan']}, penumbra {b.get('shadow_soft_mm', 0.0)} mm, "
           f"table smoothness {b.get('smooth_weight', 3.0)}, "
           f"cross-validated MSE {b['cv_mse']:.1f}")
+    c = rep["centres"]
+    print(f"press centres: fitted frames {c['fit']}, held-out frames {c['headline']} ({centres_reason(c)})")
     h = rep["heldout"]
     if h is None:
         print("held-out score: none (fitted on all frames)")
     else:
-        for label, r in ((f"{h['centres']} centres", h), ("annotated centres", h.get("annotated"))):
-            if r is None:
-                continue
-            print(f"held-out score on the {r['frames']} {h['frame_set']} frames, {label}: skill {r['skill']:.3f}, "
-                  f"contact PSNR {r['contact']['psnr']:.2f} dB (background alone "
-                  f"{r['baseline']['contact']['psnr']:.2f}), contact L1 {r['contact']['l1']:.2f} "
-                  f"(background alone {r['baseline']['contact']['l1']:.2f})")
-            print("  " + small_slope_line(r["small_slope"]))
+        print(f"held-out score on the {h['frames']} {h['frame_set']} frames:")
+        for line in score_lines(h):
+            print("  " + line)
     return 0
 
 
-# the frames a scored set is registered against (gelsim.calibrate.register_presses): the others
+# the frames a scored set's centres are chosen on (gelsim.calibrate.choose_centres): the others
 REGISTER_AGAINST = {"odd": "even", "even": "odd", "all": "all"}
+CENTRES = ("auto", "annotated", "detected", "registered")
 
 
 def realism_report(profile="gelsight-r15", datapack=None, frames: str = "odd", *, mm_per_px: float | None = None,
                    ball_diameter_mm: float = 4.0, channel_order: str = "bgr", out=None,
-                   centres: str = "annotated") -> dict:
-    """What ``gelsim realism --json`` prints (see :func:`gelsim.realism.evaluate`); ``mm_per_px``
-    None keeps the profile's; ``centres`` "registered" places the balls at the centres
-    :func:`gelsim.calibrate.register_presses` finds (the report then holds ``"registration"``)."""
+                   centres: str = "auto") -> dict:
+    """What ``gelsim realism --json`` prints: :func:`gelsim.calibrate.headline_report` of the scores at
+    ``centres`` ("auto": the independent source :func:`gelsim.calibrate.choose_centres` picks on the
+    other frames), with the annotated and registered scores beside it, and ``"choice"`` (that
+    function's report). ``mm_per_px`` None keeps the profile's."""
     from ..atomic import write_png
-    from ..calibrate import register_presses
+    from ..calibrate import centre_scores, choose_centres, headline_report
     from ..errors import check_choice
-    from ..realism import check_geometry, evaluate, side_by_side
+    from ..realism import check_geometry, side_by_side
     from ..sensor import load_profile
 
     if mm_per_px is not None:
         _positive("--mm-per-px", mm_per_px)
     _positive("--ball-diameter-mm", ball_diameter_mm)
+    check_choice("centres", centres, CENTRES)
     prof = load_profile(profile)
     pack = _pack(datapack, channel_order)
     h, w = pack.shape
@@ -153,22 +162,53 @@ def realism_report(profile="gelsight-r15", datapack=None, frames: str = "odd", *
                           f"frames are {w}x{h}; score a profile fitted to this pack (`gelsim calibrate`)")
     if mm_per_px is not None:
         prof = dataclasses.replace(prof, image=dataclasses.replace(prof.image, mm_per_px=mm_per_px))
-    check_choice("centres", centres, ("annotated", "registered"))
-    registration = None
-    if centres == "registered":
-        check_geometry(pack, prof.image.mm_per_px, ball_diameter_mm, pack.source or "data pack")
-        pack, registration = register_presses(pack, REGISTER_AGAINST[frames], prof.image.mm_per_px, ball_diameter_mm)
+    check_geometry(pack, prof.image.mm_per_px, ball_diameter_mm, pack.source or "data pack")
+    if not pack.select(frames):
+        raise GelsimError(f"the data pack has no {frames} frames; give --frames all or a larger pack")
+    choice = choose_centres(pack, REGISTER_AGAINST[frames], prof.image.mm_per_px, ball_diameter_mm)
+    chosen = choice["headline"] if centres == "auto" else centres
+    sources = [chosen] + [s for s in (choice["headline"], "annotated", "registered") if s != chosen]
     keep = pack.select(frames)[0]
-    rep = evaluate(prof, pack, frames, ball_diameter_mm=ball_diameter_mm, keep=keep if out else None)
-    rep["centres"] = "registered" if registration is not None and registration["applied"] else "annotated"
-    if registration is not None:
-        rep["registration"] = registration
+    scores = centre_scores(prof, pack, frames, dict(choice, headline=chosen), ball_diameter_mm,
+                           list(dict.fromkeys(sources)), keep=keep if out else None)
+    rep = headline_report(scores, chosen)
+    rep["choice"] = choice
     example = rep.pop("example", None)
     if out and example is not None:
         write_png(out, side_by_side(*example))
         rep["image"] = str(out)
     rep["profile"] = prof.name
     return rep
+
+
+LABELS = {"annotated": "annotated centres", "detected": "detected centres (flat points)",
+          "registered": "registered centres (pose fitted: upper bound)"}
+
+
+def centres_reason(choice: dict) -> str:
+    """Why the held-out frames are placed where they are (:func:`gelsim.calibrate.choose_centres`)."""
+    reg, det = choice["registration"], choice["detection"]
+    if choice["headline"] == "detected":
+        return (f"the annotation is off: registering the fitted frames removes {100 * reg['explained']:.0f}% of its "
+                f"misfit; their flat points agree with that registration to {det['agreement_px']:.2f} px RMS")
+    why = (f"registering the fitted frames would remove only {100 * reg['explained']:.0f}% of its misfit"
+           if not reg["applied"] else f"the annotation is off, but the flat-point detector cannot stand in: "
+                                      f"{det['reason']}")
+    return f"the annotation: {why}"
+
+
+def score_lines(rep: dict) -> list[str]:
+    """Text lines of a :func:`gelsim.calibrate.headline_report`: the headline, then each comparison."""
+    def one(label, r):
+        lo, hi = r["skill_ci95"]
+        return (f"{label}: skill {r['skill']:.3f} [{lo:.3f}, {hi:.3f}], contact PSNR {r['contact']['psnr']:.2f} dB "
+                f"(background alone {r['baseline']['contact']['psnr']:.2f}), contact L1 {r['contact']['l1']:.2f} "
+                f"(background alone {r['baseline']['contact']['l1']:.2f})")
+
+    lines = [one("headline, " + LABELS[rep["centres"]], rep), "  " + small_slope_line(rep["small_slope"])]
+    for name, r in rep["compare"].items():
+        lines.append(one("beside it, " + LABELS[name], r))
+    return lines
 
 
 def run_realism(args) -> int:
@@ -180,20 +220,16 @@ def run_realism(args) -> int:
     if args.json:
         print_json(rep)
         return 0
-    where = "annotated centres"
-    reg = rep.get("registration")
-    if reg is not None:
-        fit_rms, scored_rms = reg["rms_offset_px"]
-        moved = scored_rms if scored_rms is not None else fit_rms
-        where = (f"registered centres ({moved:.1f} px RMS from the annotation)" if reg["applied"] else
-                 f"annotated centres (registering them would remove only {100 * reg['explained']:.0f}% of the misfit)")
-    print(f"{rep['frames']} {args.frames} frames, profile {rep['profile']}, {where}, "
+    print(f"{rep['frames']} {args.frames} frames, profile {rep['profile']}, {LABELS[rep['centres']]}, "
           f"{rep['ms_per_frame']:.1f} ms per frame (imprint + render)")
+    if args.centres == "auto":
+        print(f"centres: {centres_reason(rep['choice'])}")
     print(f"{'':10s} {'crop SSIM':>9s} {'PSNR':>6s} {'L1':>5s} | {'contact SSIM':>12s} {'PSNR':>6s} {'L1':>5s} | skill")
     for name, r in (("simulated", rep), ("baseline", rep["baseline"])):
         print(f"{name:10s} {r['crop']['ssim']:9.4f} {r['crop']['psnr']:6.2f} {r['crop']['l1']:5.2f} | "
               f"{r['contact']['ssim']:12.4f} {r['contact']['psnr']:6.2f} {r['contact']['l1']:5.2f} | {r['skill']:.3f}")
-    print(small_slope_line(rep["small_slope"]))
+    for line in score_lines(rep):
+        print(line)
     if rep.get("image"):
         print(f"wrote {rep['image']}")
     return 0

@@ -227,10 +227,12 @@ def _negligible(shear, twist, profile):
 
 
 def render_sequences(prepared: list[PreparedSequence], profile, fidelity, renderer, *, sensor_seed: int = 0,
-                     outputs=("frames", "imprint", "markers"), sink=None, sync: bool = True) -> dict:
+                     outputs=("frames", "imprint", "markers"), sink=None, sync: bool = True,
+                     optics_batch: int | None = None) -> dict:
     """Render ``prepared`` sequences in step on the device of ``renderer`` (a :class:`DeviceRenderer`): frame t of
     every sequence in one batch. Each finished batch of uint8 frames goes to ``sink(frames (B, H, W, 3) host
-    array, [(sequence, frame index), ...])`` when given. Returns each sequence's labels (as render_sequence's)
+    array, [(sequence, frame index), ...])`` when given; ``optics_batch``: the optics render at most that many
+    frames per call (the same bytes for any: the torch optics' frames do not depend on their batch). Returns each sequence's labels (as render_sequence's)
     under ``"labels"``, and ``"seconds"``: wall seconds per stage (``sync``: the device is synchronised at each
     stage's end, so that the stages' times are its own) and ``"frames"``: the count."""
     torch = ops.torch_module()
@@ -327,18 +329,22 @@ def render_sequences(prepared: list[PreparedSequence], profile, fidelity, render
             t = lap("markers", t)
         if want_frames:
             offsets = [renderer.draw(rngs[i]) for i in idx]
-            out = renderer.frames(depth, corners, offsets)
-            t = lap("optics", t)
-            host = out.cpu().numpy()
-            if sink is not None:
-                sink(host, [(i, step) for i in idx])
-            t = lap("download", t)
+            chunk = optics_batch or len(idx)
+            for a in range(0, len(idx), chunk):
+                part = slice(a, a + chunk)
+                out = renderer.frames(depth[part], None if corners is None else corners[part], offsets[part])
+                t = lap("optics", t)
+                host = out.cpu().numpy()
+                t = lap("download", t)
+                if sink is not None:      # the consumer's time (encoding) is not a stage's
+                    sink(host, [(i, step) for i in idx[part]])
+                    t = clock()
         frames_done += len(idx)
     result = []
     for i, s in enumerate(prepared):
         lab = s.contact.to_dict()
         lab.update(labels[i])
-        if rest is not None:
-            lab["markers_rest_px"] = rest.astype(np.float32)
+        if "markers" in outputs or want_frames:   # the schema's key, empty without markers (as render_sequence's)
+            lab["markers_rest_px"] = np.zeros((0, 2), np.float32) if rest is None else rest.astype(np.float32)
         result.append(lab)
     return {"labels": result, "seconds": seconds, "frames": frames_done}

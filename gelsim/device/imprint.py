@@ -22,6 +22,7 @@ from ..errors import GelsimError
 from ..gel import Imprint, gel_sag_mm, work_shape
 from ..gel import twoscale as ts
 from ..gel.util import MIN_BLUR_PX
+from ..optics.ops.resample import area_mean_torch
 from . import ops
 from .macro import DeviceMacroState, MacroResult, gel_operator, plan_grid, solve_macro
 from .texture import TextureScale, texture_depth
@@ -92,8 +93,8 @@ def _to_work(x, profile, ws):
         raise GelsimError(f"protrusion maps are {(h, w)}; give {profile.shape} (the profile's image) or {tuple(ws)} "
                           "(its imprint grid)")
     fy, fx = h // ws[0], w // ws[1]
-    if fy * ws[0] == h and fx * ws[1] == w:
-        return x.float().reshape(x.shape[0], ws[0], fy, ws[1], fx).mean(dim=(2, 4))
+    if fy == fx and fy * ws[0] == h and fx * ws[1] == w:
+        return area_mean_torch(x.float(), fy)
     import cv2
 
     out = np.stack([cv2.resize(np.ascontiguousarray(a, np.float32), (ws[1], ws[0]), interpolation=cv2.INTER_AREA)

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..errors import GelsimError
 from ..markers import _CELLS_PER_THICKNESS, _corners, _screen_multiplier, field_window
+from ..optics.ops.resample import area_mean_torch
 from . import ops
 
 #: Marker positions (centres and corners) of the device path within this of the numpy path's, px, given the same
@@ -147,7 +148,7 @@ def _displace_live(profile, fid, depth_mm, contact_mask, box, live, shear, twist
     wc_t = ops.as_index([x[3] for x in wins], dev)
     both = torch.stack([depth_mm.index_select(0, lix).float(), contact_mask.index_select(0, lix).float()], dim=1)
     big = torch.stack([ops.crop(both[:, i], r0_t, c0_t, (HC * f, WC * f), hc_t * f, wc_t * f) for i in range(2)], 1)
-    cells = big.reshape(n, 2, HC, f, WC, f).mean(dim=(3, 5)) if f > 1 else big    # INTER_AREA by a whole factor
+    cells = area_mean_torch(big, f)                                                 # INTER_AREA by a whole factor
     yy = torch.arange(HC, device=dev)[None, :, None]
     xx = torch.arange(WC, device=dev)[None, None, :]
     own = (yy < hc_t[:, None, None]) & (xx < wc_t[:, None, None])

@@ -12,12 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def torch_module():
-    """The torch module, or one line saying how to get it (the torch backend's message)."""
-    from ..optics.ops import torch_module as optics_torch
-
-    return optics_torch()
+from ..optics.ops import pad_hw, torch_module  # noqa: F401 (torch_module: the device modules' way to torch)
+from ..optics.ops.box import extent_torch
 
 
 def as_index(values, device):
@@ -37,14 +33,9 @@ def bbox(mask):
     (r0, r1, c0, c1), ends exclusive; (0, 0, 0, 0) for a frame without any."""
     torch = torch_module()
     out = []
-    for dim in (2, 1):
-        hit = mask.any(dim=dim)
-        n = hit.shape[1]
-        ar = torch.arange(n, device=mask.device)
-        first = torch.where(hit, ar, n).amin(dim=1)
-        last = torch.where(hit, ar, -1).amax(dim=1) + 1
-        empty = ~hit.any(dim=1)
-        out += [torch.where(empty, 0, first), torch.where(empty, 0, last)]
+    for first, last in extent_torch(mask):
+        empty = last < first
+        out += [torch.where(empty, 0, first), torch.where(empty, 0, last + 1)]
     return torch.stack(out, dim=1)
 
 
@@ -139,6 +130,13 @@ def upsample_cells(field, f, rows, cols, shape):
     return read_rows(read_cols(field, xi0, xi1, wx), yi0, yi1, wy)
 
 
+def _pad_window(x, k: int, dim: int):
+    """``(B, H, W)`` ``x`` with ``k // 2`` replicas of its first and ``k - 1 - k // 2`` of its last sample along
+    ``dim`` (1: rows, 2: columns): what a window of ``k`` anchored at ``k // 2`` reads, OpenCV's replicated border."""
+    a, b = k // 2, k - 1 - k // 2
+    return pad_hw(x, (a, b, 0, 0) if dim == 2 else (0, 0, a, b), "replicate")
+
+
 def window_extreme(x, k: int, dim: int, op: str):
     """Maximum (``op`` "max") or minimum ("min") over ``k`` samples along ``dim`` (1: rows, 2: columns) of
     ``(B, H, W)`` ``x``, anchored at ``k // 2`` as OpenCV's morphology and box filters are, the border
@@ -146,15 +144,8 @@ def window_extreme(x, k: int, dim: int, op: str):
     torch = torch_module()
     if k <= 1:
         return x
-    a = k // 2
     n = x.shape[dim]
-    first = x.narrow(dim, 0, 1)
-    last = x.narrow(dim, n - 1, 1)
-    parts = [first.expand(*[a if d == dim else -1 for d in range(3)])] if a else []
-    parts += [x]
-    if k - 1 - a:
-        parts.append(last.expand(*[k - 1 - a if d == dim else -1 for d in range(3)]))
-    m = torch.cat(parts, dim=dim)
+    m = _pad_window(x, k, dim)
     fn = torch.maximum if op == "max" else torch.minimum
     w, size = 1, n + k - 1
     while 2 * w <= k:
@@ -173,15 +164,9 @@ def box_filter(x, k: int):
         return x
     shape = x.shape
     y = x.reshape(-1, shape[-2], shape[-1]).double()
-    a = k // 2
     for dim in (2, 1):
         n = y.shape[dim]
-        first, last = y.narrow(dim, 0, 1), y.narrow(dim, n - 1, 1)
-        parts = ([first.expand(*[a if d == dim else -1 for d in range(3)])] if a else []) + [y]
-        if k - 1 - a:
-            parts.append(last.expand(*[k - 1 - a if d == dim else -1 for d in range(3)]))
-        p = torch.cat(parts, dim=dim)
-        c = torch.cumsum(p, dim=dim)
+        c = torch.cumsum(_pad_window(y, k, dim), dim=dim)
         zero = torch.zeros_like(c.narrow(dim, 0, 1))
         c = torch.cat([zero, c], dim=dim)
         y = (c.narrow(dim, k, n) - c.narrow(dim, 0, n)) * (1.0 / k)

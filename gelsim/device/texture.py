@@ -19,6 +19,7 @@ from ..gel import texture_kernels as tk
 from ..gel import twoscale as ts
 from ..gel.johnson import segment_arrays
 from ..gel.layer import effective_modulus_mpa
+from ..optics.ops.resample import area_mean_torch
 from . import ops
 
 CONTACT, KEPT, LAM = tk.CONTACT, tk.KEPT, tk.LAM
@@ -192,7 +193,7 @@ def texture_depth(surface, env, ny, nx, pressure_cells, scale: TextureScale, gel
     # The band's statistics from the cells' moments (kernels.moment_sums, band_cells)
     d_band = 2.0 * dx if half else dx
     if half:
-        b = tq.reshape(bsz, NY // 2, 2, NX // 2, 2).mean(dim=(2, 4))
+        b = area_mean_torch(tq, 2)            # cv2.resize's INTER_AREA, as the numpy path's
         brow, bcol = NYb // 2, NXb // 2
     else:
         b, brow, bcol = tq, NYb, NXb

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from gelsim.calibrate import calibrate, fit_background, fit_noise, register_presses
+from gelsim.calibrate import calibrate, fit_background, fit_noise, register_heldout, register_presses
 from gelsim.cli import main
 from gelsim.errors import GelsimError
 from gelsim.optics import Renderer
@@ -82,9 +82,13 @@ def test_calibration_recovers_gel_thickness_noise_and_light_azimuths(fitted):
 def test_exact_annotations_are_kept(fitted):
     """The synthetic pack's centres are exact: registration finds little to gain and leaves them."""
     truth, pack, rep, d = fitted
-    reg = rep["registration"]
+    reg = rep["centres"]["registration"]
     assert reg["applied"] is False and reg["explained"] < 0.5
     assert np.all(np.asarray(reg["offsets_px"]) == 0.0)
+    assert rep["centres"]["headline"] == rep["centres"]["fit"] == "annotated"
+    np.testing.assert_array_equal(rep["centres"]["centres_px"], pack.centers_px)
+    # at 0.118 mm/px the flat-point detector's disk (slope 0.1 on a 4 mm ball) is under 2 px: not used
+    assert rep["centres"]["detection"]["available"] is False and "under 2 px" in rep["centres"]["detection"]["reason"]
 
 
 def test_registration_recovers_shifted_centres():
@@ -113,7 +117,12 @@ def test_registration_recovers_shifted_centres():
     moved, rep = register_presses(off, "even", mm, BALL_MM)
     assert rep["applied"] and rep["explained"] > 0.5
     err = np.hypot(*(moved.centers_px - centers).T)
-    assert np.sqrt((shift ** 2).sum(axis=1).mean()) > 2.0 and err.max() < 1.0, err
+    assert np.sqrt((shift ** 2).sum(axis=1).mean()) > 2.0 and err[0::2].max() < 1.0, err
+    np.testing.assert_array_equal(moved.centers_px[1::2], off.centers_px[1::2])     # the others are left
+    # each odd press registered against the table of the even ones (at their registered centres)
+    cents = register_heldout(off, [0, 2, 4, 6], moved.centers_px, [1, 3, 5, 7], mm, BALL_MM)
+    err = np.hypot(*(cents - centers)[1::2].T)
+    assert err.max() < 1.0, err
 
 
 def test_fitted_profile_reproduces_held_out_frames(fitted):
@@ -208,8 +217,12 @@ def test_cli_calibrate_reports_its_held_out_score(fitted, tmp_path, capsys):
     doc = json.loads(capsys.readouterr().out)
     held = doc["heldout"]
     assert held["frame_set"] == "odd" and held["frames"] == 6 and held["centres"] == "annotated"
-    assert doc["registration"]["applied"] is False and "annotated" not in held
+    assert doc["centres"]["registration"]["applied"] is False and set(held["compare"]) == {"registered"}
     assert held["skill"] > 0.9 and held["baseline"]["skill"] == 0.0
+    lo, hi = held["skill_ci95"]
+    assert lo <= held["skill"] <= hi and hi - lo > 0
+    # the registered poses are fitted to the fitted frames' table: they can only help (here, exact centres, little)
+    assert held["compare"]["registered"]["skill"] >= held["skill"] - 0.01
     again = evaluate(load_profile(tmp_path / "c.toml"), pack, "odd", ball_diameter_mm=BALL_MM)
     assert held["skill"] == pytest.approx(again["skill"])
     assert main(args[:3] + [str(tmp_path / "c2.toml")] + args[4:] + ["--frames", "all"]) == 0
@@ -235,14 +248,24 @@ def test_cli_calibrate_and_realism(fitted, tmp_path, capsys):
     import cv2
     img = cv2.imread(str(out_png))
     assert img.shape == (truth.shape[0], 3 * truth.shape[1], 3)
-    # --centres registered places the balls as calibrate does: here (exact centres) where annotated
+    # the headline (auto) is at the annotated centres here (exact, the registration leaves them); the
+    # registered score (the pose fitted: an upper bound) is printed beside it
+    assert doc["centres"] == "annotated" and doc["choice"]["registration"]["applied"] is False
+    assert set(doc["compare"]) == {"registered"}
     assert main(["realism", "--profile", str(d / "fit.toml"), "--datapack", str(d / "pack.npz"),
                  "--mm-per-px", str(truth.image.mm_per_px), "--centres", "registered", "--json"]) == 0
     reg = json.loads(capsys.readouterr().out)
-    assert reg["centres"] == "annotated" and reg["registration"]["applied"] is False
-    assert reg["skill"] == pytest.approx(doc["skill"])
+    assert reg["centres"] == "registered" and set(reg["compare"]) == {"annotated"}
+    assert reg["skill"] == pytest.approx(doc["compare"]["registered"]["skill"])
+    assert reg["compare"]["annotated"]["skill"] == pytest.approx(doc["skill"])
+    # detected centres where the detector cannot run: one line, exit 2
+    assert main(["realism", "--profile", str(d / "fit.toml"), "--datapack", str(d / "pack.npz"),
+                 "--mm-per-px", str(truth.image.mm_per_px), "--centres", "detected"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "flat-point detector" in err and "--centres annotated" in err
     assert main(["realism", "--profile", str(d / "fit.toml"), "--datapack", str(d / "pack.npz"),
                  "--mm-per-px", str(truth.image.mm_per_px)]) == 0
     text = capsys.readouterr().out
-    line = [ln for ln in text.splitlines() if ln.startswith("small slopes")]
+    line = [ln for ln in text.splitlines() if "small slopes" in ln]
     assert len(line) == 1 and "gain sim/real R" in line[0] and "RMS" in line[0]
+    assert "headline, annotated centres: skill" in text and "registered centres (pose fitted: upper bound)" in text

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from gelsim.fidelity import get_fidelity
-from gelsim.gel import johnson, press
+from gelsim.gel import johnson, press, wave_check
 from gelsim.sensor import load_profile
 
 REFERENCE = dataclasses.replace(get_fidelity("reference"), imprint_model="elastic", imprint_scale=1.0)
@@ -37,7 +37,7 @@ TOL_KEPT = 0.02
 
 def press_wave(level, kind, wavelength_mm, s_target, px_per_period=PX_PER_PERIOD, width_px=192, height_px=128,
                angle_deg=0.0):
-    r = johnson.press_wave(load_profile("vitac"), LEVELS[level], kind, wavelength_mm, s_target,
+    r = wave_check.press_wave(load_profile("vitac"), LEVELS[level], kind, wavelength_mm, s_target,
                            px_per_period=px_per_period, width_px=width_px, height_px=height_px, angle_deg=angle_deg)
     return r["contact_fraction"], r["kept"], r["s"], (r["theory_contact_fraction"], r["theory_kept"])
 

@@ -152,3 +152,7 @@ def test_generate_nuisance_levels_keep_the_labels_and_any_worker_count_the_bytes
     with pytest.raises(GelsimError, match="unknown nuisance level 'loud'"):
         generate(GenerateConfig(**base, nuisance="loud"), tmp_path / "bad", workers=1, previews=False)
     assert not (tmp_path / "bad").exists()
+    with pytest.raises(GelsimError, match="not in --stages all"):
+        generate(GenerateConfig(**base, nuisance="camera", backend="torch", stages="all"), tmp_path / "bad2",
+                 workers=1, previews=False)
+    assert not (tmp_path / "bad2").exists()

@@ -113,3 +113,27 @@ def test_round_trip_through_toml(tmp_path):
     p = tmp_path / "rt.toml"
     p.write_text(text)
     assert build(Outer, load_toml(p)) == o
+
+
+def test_toml_entries_keep_each_keys_comment_with_its_continuation(tmp_path):
+    from gelsim.params import toml_comments, toml_entries
+
+    (tmp_path / "s.toml").write_text(
+        '# header\n'
+        'name = "x"  # a label # with a hash\n'
+        'title = "a # b"\n'
+        '[gel]\n'
+        'thickness_mm = 2.0   # assumed: as vitac\n'
+        '                     # (continued)\n'
+        '# a section comment, not a continuation\n'
+        'modulus = 0.2\n'
+        '[[lights]]\n'
+        'azimuth_deg = 4.8  # measured\n'
+        '[[lights]]\n'
+        'azimuth_deg = -118.3\n')
+    got = toml_entries(tmp_path / "s.toml")
+    assert got == [("name", '"x"', "a label # with a hash"), ("title", '"a # b"', None),
+                   ("gel.thickness_mm", "2.0", "assumed: as vitac (continued)"), ("gel.modulus", "0.2", None),
+                   ("lights[0].azimuth_deg", "4.8", "measured"), ("lights[1].azimuth_deg", "-118.3", None)]
+    # what calibrate carries: plain values outside arrays of tables
+    assert toml_comments(tmp_path / "s.toml") == {"gel.thickness_mm": "assumed: as vitac (continued)"}

@@ -303,3 +303,21 @@ def test_r15_profile_beats_taxim_on_the_odd_frames():
     ss = res["small_slope"]
     assert ss["rms_dn"] < 0.6 * ss["baseline_rms_dn"]
     assert all(0.8 < g < 1.4 for g in ss["gain_ratio"]), ss["gain_ratio"]
+
+
+def test_skill_interval_brackets_the_skill_and_narrows_with_agreement():
+    from gelsim.realism import skill_interval
+
+    rng = np.random.default_rng(0)
+    base = rng.uniform(100, 200, 12)
+    assert skill_interval(np.zeros(12), base) == [1.0, 1.0]          # a perfect simulation, every resample
+    sim = base * rng.uniform(0.05, 0.15, 12)
+    lo, hi = skill_interval(sim, base)
+    skill = 1.0 - sim.sum() / base.sum()
+    assert lo < skill < hi and hi - lo < 0.05
+    spread = base * rng.uniform(0.0, 0.3, 12)                        # the presses disagree more: wider
+    lo2, hi2 = skill_interval(spread, base)
+    assert hi2 - lo2 > hi - lo
+    assert skill_interval(sim, base) == [lo, hi]                     # seeded: the same frames, the same interval
+    with pytest.raises(GelsimError, match="per-press"):
+        skill_interval(sim, base[:5])

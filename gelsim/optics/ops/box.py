@@ -42,13 +42,23 @@ def box_mask_torch(pos, margin: int):
     where the depth is positive), the box grown by ``margin`` px (all false for a flat frame)."""
     torch = torch_module()
     out = []
+    for dim, (first, last) in zip((1, 2), extent_torch(pos)):
+        ar = torch.arange(pos.shape[dim], device=pos.device)
+        out.append((ar >= first[:, None] - margin) & (ar <= last[:, None] + margin))
+    rows, cols = out
+    return (rows[:, :, None] & cols[:, None, :])[:, None]
+
+
+def extent_torch(pos):
+    """The first and last row, then the first and last column, holding a true pixel of each frame of bool ``(B, H,
+    W)`` ``pos``: ``((first, last), (first, last))``, int64 ``(B,)`` each, inclusive; a frame without any has
+    first ``n`` and last ``-n`` (``n`` the axis's length), so that no pixel lies between them."""
+    torch = torch_module()
+    out = []
     for dim in (2, 1):                       # rows (any over columns), then columns (any over rows)
         hit = pos.any(dim=dim)               # (B, n)
         n = hit.shape[1]
         ar = torch.arange(n, device=pos.device)
         big = torch.full_like(ar, n)
-        first = torch.where(hit, ar, big).amin(dim=1, keepdim=True)
-        last = torch.where(hit, ar, -big).amax(dim=1, keepdim=True)
-        out.append((ar >= first - margin) & (ar <= last + margin))
-    rows, cols = out
-    return (rows[:, :, None] & cols[:, None, :])[:, None]
+        out.append((torch.where(hit, ar, big).amin(dim=1), torch.where(hit, ar, -big).amax(dim=1)))
+    return tuple(out)
