@@ -36,7 +36,7 @@ from .errors import GelsimError
 # Coarse-grid cells per gel thickness: the displacement fields vary over about one
 # thickness; six samples per thickness resolve them (the fields change by < 1% against
 # twelve) and keep the markers near 1 ms per frame.
-_CELLS_PER_THICKNESS = 6.0
+CELLS_PER_THICKNESS = 6.0
 # Corner order for drawing: top-left, top-right, bottom-right, bottom-left (image axes).
 _CORNERS = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]], np.float64)
 
@@ -105,7 +105,7 @@ def _marker_grid(spec, image, seed: int) -> np.ndarray:
     return pts.astype(np.float32)
 
 
-def _corners(centres: np.ndarray, profile) -> np.ndarray:
+def square_corners(centres: np.ndarray, profile) -> np.ndarray:
     half = profile.markers.size_mm / profile.image.mm_per_px / 2.0
     return centres[:, None, :].astype(np.float64) + _CORNERS[None] * half
 
@@ -113,7 +113,7 @@ def _corners(centres: np.ndarray, profile) -> np.ndarray:
 def rest_markers(profile, *, seed: int = 0) -> Markers:
     """Undeformed markers (frames before contact)."""
     rest = marker_grid(profile, seed=seed)
-    c = _corners(rest, profile).astype(np.float32)
+    c = square_corners(rest, profile).astype(np.float32)
     return Markers(rest, rest.copy(), c)
 
 
@@ -134,12 +134,12 @@ def _screened(fields: np.ndarray, ell_cells: float, pad: int) -> np.ndarray:
     big = np.zeros((k, h + 2 * pad, w + 2 * pad))
     big[:, pad:pad + h, pad:pad + w] = fields
     spec = np.fft.rfft2(big)
-    spec *= _screen_multiplier(h + 2 * pad, w + 2 * pad, float(ell_cells))
+    spec *= screen_multiplier(h + 2 * pad, w + 2 * pad, float(ell_cells))
     return np.fft.irfft2(spec, s=big.shape[1:])[:, pad:pad + h, pad:pad + w]
 
 
 @functools.lru_cache(maxsize=64)
-def _screen_multiplier(hp: int, wp: int, ell_cells: float) -> np.ndarray:
+def screen_multiplier(hp: int, wp: int, ell_cells: float) -> np.ndarray:
     """-1/(q^2 + 1/l^2) on the rfft2 grid of an (hp, wp) field (read-only, cached: a window's size
     repeats from frame to frame)."""
     qy = 2 * np.pi * np.fft.fftfreq(hp)[:, None]
@@ -173,7 +173,7 @@ def field_window(profile, box: tuple[int, int, int, int]) -> tuple[int, int, int
     h, w = profile.shape
     bx, by, bw, bh = box
     # Integer cells: INTER_AREA then averages whole blocks (its fast path).
-    f = max(1, int(round(gel.thickness_mm / _CELLS_PER_THICKNESS / mmpp)))
+    f = max(1, int(round(gel.thickness_mm / CELLS_PER_THICKNESS / mmpp)))
     ell = gel.thickness_mm / (f * mmpp)  # reach of the in-plane fields, cells
     # The fields fall below 1% of their peak 4 reaches beyond the imprint (exp(-4) for the
     # screened kernel, far less for the Gaussian): compute over the imprint plus that margin.
@@ -282,7 +282,7 @@ def displace(profile, fidelity, imprint, *, shear_mm=(0.0, 0.0), twist_deg: floa
     if np.asarray(shear_mm).shape != (2,):
         raise GelsimError(f"shear_mm = {shear_mm} must be two numbers (x, y) in mm")
     rest = _check_rest(rest, profile, seed)
-    corners = _corners(rest, profile)
+    corners = square_corners(rest, profile)
     res = None if imprint is None or rest.shape[0] == 0 else displacement_fields(
         profile, fidelity, imprint, shear_mm=shear_mm, twist_deg=twist_deg)
     if res is None:

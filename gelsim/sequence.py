@@ -95,7 +95,7 @@ class SequenceOptions:
         object.__setattr__(self, "outputs", outputs)
 
 
-def _negligible_px(shear_mm, twist_deg: float, profile: SensorProfile) -> tuple[bool, bool]:
+def negligible_px(shear_mm, twist_deg: float, profile: SensorProfile) -> tuple[bool, bool]:
     """Whether the shear and the twist each move every marker by less than NEGLIGIBLE_PX.
 
     The twist's lever arm is bounded by the image's diagonal (the centroid lies inside)."""
@@ -199,7 +199,7 @@ def render_sequence(obj: TouchedObject, motion: Motion, profile: SensorProfile, 
                     contact.yaw_deg[i], tuple(contact.tilt_deg[i]))
             shear, twist = tuple(float(v) for v in contact.shear_mm[i]), float(contact.twist_deg[i])
             if o.shortcuts:
-                skip_shear, skip_twist = _negligible_px(shear, twist, profile)
+                skip_shear, skip_twist = negligible_px(shear, twist, profile)
                 shear = (0.0, 0.0) if skip_shear else shear
                 twist = 0.0 if skip_twist else twist
             touch = Touch(patch.sample(*pose), force_n=force if touching else 0.0, shear_mm=shear, twist_deg=twist,

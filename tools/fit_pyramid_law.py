@@ -21,7 +21,7 @@ from gelsim.cli import run_script
 from gelsim.fidelity import get_fidelity
 from gelsim.gel import press
 from gelsim.gel.layer import disk_layer_factor, effective_modulus_mpa
-from gelsim.gel.pyramid import LAW_FILE, _LawSamples, imprint_law, press_pyramid
+from gelsim.gel.pyramid import LAW_FILE, LawSamples, imprint_law, press_pyramid
 from gelsim.gel.util import membrane_blur
 from gelsim.params import dump_toml
 from gelsim.sensor import load_profile
@@ -72,7 +72,7 @@ def fit_pyramid_law(profile=None, resolution_px: int = 480) -> dict[str, Any]:
         # Volume under the pyramid's gel surface at approach delta (mm^3), and the apparent area.
         mm = prof.image.mm_per_px
         depth, *_ = press_pyramid(prot.astype(np.float32), mm, prof.gel, None, delta, None, "touched", law=trial)
-        app = _LawSamples(prot.max() - prot, mm, prof.gel, prof.gel.max_indentation_mm, trial).at(delta)[1]
+        app = LawSamples(prot.max() - prot, mm, prof.gel, prof.gel.max_indentation_mm, trial).at(delta)[1]
         return float(depth.sum(dtype=np.float64)) * mm * mm, app
 
     def law_force(vol, area, gel, c, kappa, beta):

@@ -221,9 +221,9 @@ def prepare_sequence(obj, motion, profile, fidelity, *, seed: int) -> PreparedSe
 
 
 def _negligible(shear, twist, profile):
-    from ..sequence import _negligible_px
+    from ..sequence import negligible_px
 
-    return _negligible_px(shear, twist, profile)
+    return negligible_px(shear, twist, profile)
 
 
 def render_sequences(prepared: list[PreparedSequence], profile, fidelity, renderer, *, sensor_seed: int = 0,

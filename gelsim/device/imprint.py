@@ -454,8 +454,8 @@ def _imprint_touched(res: MacroResult, cb, which, work, own, sag, env_full, fram
         f = pl.f
         w0, w1 = r0 + max(0, int(cb[b][0]) - 1) * f, min(r1, r0 + (int(cb[b][1]) + 1) * f)
         v0, v1 = c0 + max(0, int(cb[b][2]) - 1) * f, min(c1, c0 + (int(cb[b][3]) + 1) * f)
-        w0, w1 = ts._widen(w0, w1, ny_f)
-        v0, v1 = ts._widen(v0, v1, nx_f)
+        w0, w1 = ts.widen_window(w0, w1, ny_f)
+        v0, v1 = ts.widen_window(v0, v1, nx_f)
         wins.append((w0, w1, v0, v1))
     w0_t = ops.as_index([x[0] for x in wins], dev)
     v0_t = ops.as_index([x[2] for x in wins], dev)
@@ -556,8 +556,8 @@ def _imprint_touched(res: MacroResult, cb, which, work, own, sag, env_full, fram
                 for j, b in enumerate(bs):
                     pl = plans[b]
                     w0, _, v0, _ = wins[b]
-                    a = ts._axis_cell_matrix(w0, w0 + int(nyh[j]), pl.box[0], pl.f, pl.cshape[0], int(rr[j]), ny_f)
-                    c = ts._axis_cell_matrix(v0, v0 + int(nxh[j]), pl.box[2], pl.f, pl.cshape[1], int(cc[j]), nx_f)
+                    a = ts.axis_cell_matrix(w0, w0 + int(nyh[j]), pl.box[0], pl.f, pl.cshape[0], int(rr[j]), ny_f)
+                    c = ts.axis_cell_matrix(v0, v0 + int(nxh[j]), pl.box[2], pl.f, pl.cshape[1], int(cc[j]), nx_f)
                     my[j, :a.shape[0], :a.shape[1]] = a
                     my[j, a.shape[0]:, :a.shape[1]] = a[-1]
                     mx[j, :c.shape[0], :c.shape[1]] = c

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.special import k0, k1
 
 from ..gel import twoscale as ts
-from ..gel.layer import _layer_correction_table, _love, _wrapped, padded_size
+from ..gel.layer import layer_correction_table, love_influence, wrapped_offsets, padded_size
 from . import ops
 
 # (np.float32 values of the numpy path's constants, where it compares or adds in float32)
@@ -61,11 +61,11 @@ def layer_coefficients(n: tuple[int, int], m: tuple[int, int], dx: float, e_mpa:
                        rho: float) -> np.ndarray:
     """The layer's influence coefficients (:func:`gelsim.gel.layer.kernel_spectrum`'s, mm per MPa) at the
     wrapped offsets of signals up to ``n`` (ny, nx) cells on a zero-padded ``m`` grid, float64 (read-only)."""
-    y, x = np.meshgrid(_wrapped(n[0], m[0], dx), _wrapped(n[1], m[1], dx), indexing="ij")
+    y, x = np.meshgrid(wrapped_offsets(n[0], m[0], dx), wrapped_offsets(n[1], m[1], dx), indexing="ij")
     a = dx / 2
-    love = _love(x + a, y + a) - _love(x + a, y - a) - _love(x - a, y + a) + _love(x - a, y - a)
+    love = love_influence(x + a, y + a) - love_influence(x + a, y - a) - love_influence(x - a, y + a) + love_influence(x - a, y - a)
     r = np.hypot(x, y)
-    rr, g = _layer_correction_table(nu, rho)
+    rr, g = layer_correction_table(nu, rho)
     corr = np.interp(r / h_mm, rr, g) / h_mm * dx * dx
     k = (1.0 - nu * nu) / (math.pi * e_mpa) * (love + corr)
     k.flags.writeable = False
@@ -76,7 +76,7 @@ def layer_coefficients(n: tuple[int, int], m: tuple[int, int], dx: float, e_mpa:
 def pasternak_coefficients(n: tuple[int, int], m: tuple[int, int], dx: float, ell: float) -> np.ndarray:
     """A Pasternak support's coefficients (unit stiffness; :func:`gelsim.gel.layer.support_kernel_spectrum`'s)
     on the grid of :func:`layer_coefficients`, float64 (read-only)."""
-    r = np.hypot(_wrapped(n[0], m[0], dx)[:, None], _wrapped(n[1], m[1], dx)[None, :])
+    r = np.hypot(wrapped_offsets(n[0], m[0], dx)[:, None], wrapped_offsets(n[1], m[1], dx)[None, :])
     with np.errstate(divide="ignore", invalid="ignore"):
         c = np.where(r > 0, k0(np.maximum(r, 1e-300) / ell), 0.0) * (dx * dx / (2 * math.pi * ell * ell))
     x0 = dx / (math.sqrt(math.pi) * ell)

@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from ..errors import GelsimError
-from ..markers import _CELLS_PER_THICKNESS, _corners, _screen_multiplier, field_window
+from ..markers import CELLS_PER_THICKNESS, square_corners, screen_multiplier, field_window
 from ..optics.ops.resample import area_mean_torch
 from . import ops
 
@@ -30,8 +30,8 @@ TOL_PX = 0.01
 @functools.lru_cache(maxsize=128)
 def _periodic_kernel(hp: int, wp: int, ell_cells: float) -> np.ndarray:
     """The screened-Poisson solve's kernel on its own (hp, wp) periodic grid: the inverse FFT of
-    :func:`gelsim.markers._screen_multiplier` (float64, read-only)."""
-    k = np.fft.irfft2(_screen_multiplier(hp, wp, ell_cells), s=(hp, wp))
+    :func:`gelsim.markers.screen_multiplier` (float64, read-only)."""
+    k = np.fft.irfft2(screen_multiplier(hp, wp, ell_cells), s=(hp, wp))
     k.flags.writeable = False
     return k
 
@@ -103,7 +103,7 @@ def displace_batch(profile, fidelity, depth_mm, contact_mask, *, shear_mm=None, 
     if rest_np.ndim == 2:
         rest_np = np.broadcast_to(rest_np, (bsz,) + rest_np.shape)
     nmk = rest_np.shape[1]
-    corners_np = np.stack([_corners(r, profile) for r in rest_np]) if nmk else np.zeros((bsz, 0, 4, 2))
+    corners_np = np.stack([square_corners(r, profile) for r in rest_np]) if nmk else np.zeros((bsz, 0, 4, 2))
     pts = np.concatenate([rest_np.astype(np.float64), corners_np.reshape(bsz, -1, 2)], axis=1)     # (B, 5N, 2)
     pts_t = torch.as_tensor(pts, device=dev)
     if nmk == 0:
@@ -128,7 +128,7 @@ def _displace_live(profile, fid, depth_mm, contact_mask, box, live, shear, twist
     mmpp = profile.image.mm_per_px
     h, w = profile.shape
     n = len(live)
-    f = max(1, int(round(gel.thickness_mm / _CELLS_PER_THICKNESS / mmpp)))
+    f = max(1, int(round(gel.thickness_mm / CELLS_PER_THICKNESS / mmpp)))
     wins = []
     for b in live:
         fb, r0, c0, hc, wc = field_window(profile, (int(box[b][2]), int(box[b][0]), int(box[b][3] - box[b][2]),

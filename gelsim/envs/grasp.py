@@ -31,7 +31,7 @@ MAX_GRIP_N = 8.0
 LIFT_GOAL_M = 0.03
 FPS = 30.0
 # Bounds of the state vector, for its Box: the hand travels within +-0.2 m, forces stay below 100 N.
-_STATE_HIGH = np.array([0.2, 100.0, 100.0, 0.2], np.float32)
+STATE_HIGH = np.array([0.2, 100.0, 100.0, 0.2], np.float32)
 
 
 class GraspEnv(gym.Env):
@@ -52,7 +52,7 @@ class GraspEnv(gym.Env):
         w, h = self.resolution
         img = spaces.Box(0, 255, (h, w, 3), np.uint8)
         self.observation_space = spaces.Dict({"tactile_left": img, "tactile_right": img,
-                                              "state": spaces.Box(-_STATE_HIGH, _STATE_HIGH, dtype=np.float32)})
+                                              "state": spaces.Box(-STATE_HIGH, STATE_HIGH, dtype=np.float32)})
         self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self._scene = None
 
@@ -115,4 +115,4 @@ def state_vector(data, hand_q: int, obj: int, obj_z0: float, left_n: float, righ
     """The observation's ``state`` (float32 (4,), clipped to its Box) and the object's rise (m) of a grasp scene."""
     rise = float(data.xpos[obj][2] - obj_z0)
     state = np.array([data.qpos[hand_q], left_n, right_n, rise], np.float32)
-    return np.clip(state, -_STATE_HIGH, _STATE_HIGH), rise
+    return np.clip(state, -STATE_HIGH, STATE_HIGH), rise

@@ -23,7 +23,7 @@ from gymnasium.vector.utils import batch_space
 from ..errors import GelsimError
 from ..mujoco.batch import BatchGelSightSensor
 from ..mujoco.grasp import OBJECTS, build_grasp_scene
-from .grasp import _STATE_HIGH, FPS, LIFT_GOAL_M, advance, state_vector
+from .grasp import STATE_HIGH, FPS, LIFT_GOAL_M, advance, state_vector
 
 
 class GraspVectorEnv(gym.vector.VectorEnv):
@@ -45,7 +45,7 @@ class GraspVectorEnv(gym.vector.VectorEnv):
         w, h = self.resolution
         img = spaces.Box(0, 255, (h, w, 3), np.uint8)
         self.single_observation_space = spaces.Dict({"tactile_left": img, "tactile_right": img,
-                                                     "state": spaces.Box(-_STATE_HIGH, _STATE_HIGH, dtype=np.float32)})
+                                                     "state": spaces.Box(-STATE_HIGH, STATE_HIGH, dtype=np.float32)})
         self.single_action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)

@@ -55,7 +55,7 @@ def layer_factor(x: np.ndarray, nu: float) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=8)
-def _layer_correction_table(nu: float, rho_max: float) -> tuple[np.ndarray, np.ndarray]:
+def layer_correction_table(nu: float, rho_max: float) -> tuple[np.ndarray, np.ndarray]:
     """G(rho) = int_0^inf (S(x) - 1) J0(x rho) dx on rho in [0, rho_max].
 
     The layer's kernel is ``(1 - nu^2) / (pi E) * (1 / r + G(r / h) / h)``. The integrand
@@ -74,7 +74,7 @@ def _layer_correction_table(nu: float, rho_max: float) -> tuple[np.ndarray, np.n
     return rho, g
 
 
-def _love(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def love_influence(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Antiderivative F with d2F/dxdy = 1/r (Love 1929), finite on the axes."""
     with np.errstate(divide="ignore", invalid="ignore"):
         ax, ay = np.abs(x), np.abs(y)
@@ -83,7 +83,7 @@ def _love(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return t1 + t2
 
 
-def _wrapped(n: int, m: int, dx: float) -> np.ndarray:
+def wrapped_offsets(n: int, m: int, dx: float) -> np.ndarray:
     """Signed offsets (mm) of a zero-padded length-m grid (m >= 2n - 1), wrapped so that the circular
     convolution of a length-n signal is linear: entries 0..n-1 are offsets 0..n-1, the last n - 1
     entries offsets -(n-1)..-1 (the ones between are never reached)."""
@@ -107,15 +107,15 @@ def kernel_spectrum(ny: int, nx: int, dx: float, e_mpa: float, nu: float, h_mm: 
     Coefficient (i, j): displacement (mm) at a pixel centre per unit pressure (MPa) on a
     pixel (i, j) away.
     """
-    y, x = np.meshgrid(_wrapped(ny, padded_size(ny), dx), _wrapped(nx, padded_size(nx), dx), indexing="ij")
+    y, x = np.meshgrid(wrapped_offsets(ny, padded_size(ny), dx), wrapped_offsets(nx, padded_size(nx), dx), indexing="ij")
     a = dx / 2
-    love = _love(x + a, y + a) - _love(x + a, y - a) - _love(x - a, y + a) + _love(x - a, y - a)
+    love = love_influence(x + a, y + a) - love_influence(x + a, y - a) - love_influence(x - a, y + a) + love_influence(x - a, y - a)
     r = np.hypot(x, y)
     # The farthest offset the (2 ny, 2 nx) grid held (n dx each way), whatever the padded size: the
     # same correction table, so the same coefficients.
     rho_needed = float(np.hypot(ny * dx, nx * dx) / h_mm) * 1.01 + 1e-6
     rho_max = 2.0 ** math.ceil(math.log2(max(rho_needed, 1.0)))  # fewer distinct tables to cache
-    rho, g = _layer_correction_table(nu, rho_max)
+    rho, g = layer_correction_table(nu, rho_max)
     corr = np.interp(r / h_mm, rho, g) / h_mm * dx * dx
     k = (1.0 - nu * nu) / (math.pi * e_mpa) * (love + corr)
     return _readonly(cv2.dft(k))
@@ -131,7 +131,7 @@ def support_kernel_spectrum(ny: int, nx: int, dx: float, ell: float) -> np.ndarr
     pixel area, the centre the exact integral over a disk of one pixel's area
     (``1 - X K1(X)``, X = dx / (sqrt(pi) l)). The weights sum to 1 (uniform load: w = p / k).
     """
-    r = np.hypot(_wrapped(ny, padded_size(ny), dx)[:, None], _wrapped(nx, padded_size(nx), dx)[None, :])
+    r = np.hypot(wrapped_offsets(ny, padded_size(ny), dx)[:, None], wrapped_offsets(nx, padded_size(nx), dx)[None, :])
     with np.errstate(divide="ignore", invalid="ignore"):
         c = np.where(r > 0, k0(np.maximum(r, 1e-300) / ell), 0.0) * (dx * dx / (2 * math.pi * ell * ell))
     x0 = dx / (math.sqrt(math.pi) * ell)

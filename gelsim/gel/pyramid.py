@@ -105,7 +105,7 @@ def _law_stiffness(area_app: np.ndarray, gel, ks: float | None, ell: float | Non
     return kg
 
 
-class _LawSamples:
+class LawSamples:
     """Penetration statistics of a protrusion for the pyramid law.
 
     ``v`` = P_max - P (mm) on the work grid. The law needs, for each approach delta, the
@@ -269,7 +269,7 @@ def press_pyramid(work, dx, gel, force_n, depth_mm, ks, window, support_len=None
     v = pmax - work
     bottomed = False
     vmax = gel.max_indentation_mm
-    samples = _LawSamples(v, dx, gel, vmax, law)
+    samples = LawSamples(v, dx, gel, vmax, law)
     sigma_px = law.pyramid_sigma_per_thickness * gel.thickness_mm / dx
     ratio = _RATIO_GUESS
     support = None

@@ -67,7 +67,7 @@ STATS_BLUR_PER_TEXTURE = 16.0
 # A texture needs this many pixels per period for its slopes to be read (central differences
 # alias beyond q dx = pi / 2).
 MIN_TEXTURE_PX = 4.0
-# Fewest pixels across the contact window (see _widen).
+# Fewest pixels across the contact window (see widen_window).
 MIN_WINDOW_PX = 8
 # p / p* beyond complete contact changes nothing (the tables end at 1); a cap keeps it finite.
 S_MAX = 1e3
@@ -442,8 +442,8 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     # A patch touching the frame's edge on a fine grid can leave a window one pixel wide; OpenCV
     # reads an array of up to 4 elements in one column as a scalar, so widen it (pressure beyond
     # the macro grid reads zero inside the frame, see _window_pressure).
-    w0, w1 = _widen(w0, w1, ny)
-    v0, v1 = _widen(v0, v1, nx)
+    w0, w1 = widen_window(w0, w1, ny)
+    v0, v1 = widen_window(v0, v1, nx)
     if has_texture and envelope is not None:
         env = envelope((w0, w1, v0, v1))
         env = env if sag is None else cv2.subtract(env, sag[w0:w1, v0:v1])
@@ -695,7 +695,7 @@ def hc_of(sol: "_Macro") -> np.ndarray:
     return sol.env_c - sol.emax
 
 
-def _widen(a: int, b: int, n: int, least: int = MIN_WINDOW_PX) -> tuple[int, int]:
+def widen_window(a: int, b: int, n: int, least: int = MIN_WINDOW_PX) -> tuple[int, int]:
     """[a, b) grown about its middle to at least ``least`` pixels, within [0, n)."""
     if b - a >= least or n <= b - a:
         return a, b
@@ -759,15 +759,15 @@ def _cell_pressure(p: np.ndarray, f: int, origin, win, cs: tuple[int, int], fram
     small matrices (the fine field and its average took two full-window passes)."""
     w0, w1, v0, v1 = win
     cols, rows = cs
-    ry = _axis_cell_matrix(w0, w1, origin[0], f, p.shape[0], rows, frame[0])
-    rx = _axis_cell_matrix(v0, v1, origin[1], f, p.shape[1], cols, frame[1])
+    ry = axis_cell_matrix(w0, w1, origin[0], f, p.shape[0], rows, frame[0])
+    rx = axis_cell_matrix(v0, v1, origin[1], f, p.shape[1], cols, frame[1])
     # OpenCV's product runs on the worker's one thread (numpy's BLAS may start threads at these sizes).
     out = cv2.gemm(cv2.gemm(ry, p.astype(np.float32), 1.0, None, 0.0), rx, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
     return np.maximum(out, np.float32(0.0))
 
 
 @functools.lru_cache(maxsize=16)
-def _axis_cell_matrix(a: int, b: int, origin: int, f: int, n: int, cells: int, size: int) -> np.ndarray:
+def axis_cell_matrix(a: int, b: int, origin: int, f: int, n: int, cells: int, size: int) -> np.ndarray:
     """float32 (cells, n), read-only: the n coarse samples (``f``-pixel blocks from fine pixel ``origin``)
     read bilinearly at fine pixels a..b-1, then averaged over ``cells`` cells tiling them (one axis of
     :func:`_cell_pressure`). Cached: a sequence's frames mostly share their window (a whole-pad cloth:

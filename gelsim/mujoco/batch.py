@@ -29,14 +29,13 @@ import numpy as np
 from ..errors import GelsimError
 from ..fidelity import Fidelity, get_fidelity
 from .sensor import GelSightSensor
+from .stickslip import StickSlip
 
 
 @dataclass
 class _PadState:
     """One pad's contact history (GelSightSensor's, kept apart so that pads can share a sensor's machinery)."""
-    anchor: object = None
-    slip_mm: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    slip_deg: float = 0.0
+    stick_slip: StickSlip = field(default_factory=StickSlip)
     frame: int = 0
     warm: object = None                  # the device imprint's state of the previous frame
 
@@ -116,7 +115,7 @@ class BatchGelSightSensor:
         _check_torch_optics(self.profile)
         self.renderer = DeviceRenderer(Renderer(self.profile, "torch", supersample=fid.supersample, seed=self.seed,
                                                 device=self.device))
-        self._rest = first._rest
+        self._rest = first.rest_px
         self.timings_ms: dict[str, float] = {}
 
     def _host(self, model, data, pad, k):
@@ -157,7 +156,6 @@ class BatchGelSightSensor:
     def _host_step(self, host: GelSightSensor, data, st: _PadState):
         """One pad's MuJoCo side: (normal N, tangential (2,), protrusion or None, shear (2,), twist, slipping)."""
         host.data = data
-        host._anchor, host._slip_mm, host._slip_deg = st.anchor, st.slip_mm, st.slip_deg
         try:
             found = host.contact_forces()
             gaps = None
@@ -166,12 +164,12 @@ class BatchGelSightSensor:
                 if not np.isfinite(gaps).any():
                     found = None
             if found is None:
-                st.anchor, st.warm = None, None
+                st.stick_slip.release()
+                st.warm = None
                 return 0.0, np.zeros(2), None, np.zeros(2), 0.0, False
             normal, tang, torque, mu, body = found
             prot = host.protrusion_mm(gaps)
-            shear, twist, slipping = host._stick_slip(body, normal, tang, torque, mu)
-            st.anchor, st.slip_mm, st.slip_deg = host._anchor, host._slip_mm, host._slip_deg
+            shear, twist, slipping = host.shear_twist(st.stick_slip, body, normal, tang, torque, mu)
             return float(normal), np.asarray(tang, float), prot, np.asarray(shear, float), float(twist), bool(slipping)
         finally:
             host.data = None

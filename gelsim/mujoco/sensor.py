@@ -36,7 +36,6 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from ..contact import gel_stiffness
 from ..errors import GelsimError
 from ..fidelity import Fidelity, get_fidelity
 from ..gel import Imprint, gel_sag_mm, work_shape
@@ -47,6 +46,7 @@ from ..scene import PHYSICS_MM_PER_PX, HeightPatch
 from ..sensor import SensorProfile, load_profile
 from ..stream import FrameSetup, StageTimer, Touch, make_frame
 from .rays import MM, PadRays
+from .stickslip import GelSprings, StickSlip
 
 #: Geom types that can be a gel pad, with the distance of their flat +z face from the geom's centre
 #: (index into ``geom_size``).
@@ -207,13 +207,11 @@ class GelSightSensor:
         check_pad_size(model, self.pad_id, pad, prof)
         self.renderer = Renderer(prof, self.fidelity.render_backend, supersample=self.fidelity.supersample,
                                  seed=self.seed)
-        self._rest = marker_grid(prof, seed=self.seed) if prof.markers.enabled else np.zeros((0, 2), np.float32)
+        #: The printed markers' rest centres, float32 (N, 2) px (N = 0 without markers).
+        self.rest_px = marker_grid(prof, seed=self.seed) if prof.markers.enabled else np.zeros((0, 2), np.float32)
         self._setup = FrameSetup.make(prof, self.fidelity, sensor_seed=self.seed, renderer=self.renderer)
         self._background = self.renderer.render(None, self._setup.flat_markers, noise=False)
-        k_shear, k_tors, r_eff = gel_stiffness(prof)
-        self._k_shear_n_mm = k_shear * MM          # N per mm of shear
-        self._k_tors_nmm_rad = k_tors / MM         # N mm per rad
-        self._r_eff_mm = r_eff / MM
+        self.springs = GelSprings.of(prof)
         sag = gel_sag_mm(prof)
         self._reach_mm = (prof.gel.max_indentation_mm + (0.0 if sag is None else float(sag.max()))
                           + _REACH_SLACK_CELLS * PHYSICS_MM_PER_PX)
@@ -239,9 +237,7 @@ class GelSightSensor:
     # -- state -------------------------------------------------------------------------------------
     def reset(self) -> None:
         """Forget the contact history (stick anchor, slip, warm start) and restart the noise stream."""
-        self._anchor = None      # (body, pad position and rotation in the body's frame)
-        self._slip_mm = np.zeros(2)
-        self._slip_deg = 0.0
+        self.stick_slip = StickSlip()
         self._prev: Imprint | None = None
         self._frame = 0
 
@@ -300,37 +296,13 @@ class GelSightSensor:
         mu = float(d.contact.friction[idx[int(np.argmax(normal))], 0])
         return total, local[:, :2].sum(0), torque, mu, body
 
-    def _stick_slip(self, body: int, normal_n: float, tang_n: np.ndarray, torque_nmm: float,
+    def shear_twist(self, history: StickSlip, body: int, normal_n: float, tang_n: np.ndarray, torque_nmm: float,
                     mu: float) -> tuple[np.ndarray, float, bool]:
-        """Gel shear (mm, (2,)) and twist (degrees) with the stick/slip model; see the module docstring."""
+        """Gel shear (mm, (2,)) and twist (degrees) with the stick/slip model (see the module docstring), from
+        the pad's and ``body``'s poses in ``data`` now; ``history``: the pad's :class:`StickSlip` (updated)."""
         d = self.data
-        p_pad, R_pad = self.pad_frame()
-        p_b, R_b = d.xpos[body], d.xmat[body].reshape(3, 3)
-        if self._anchor is None or self._anchor[0] != body:
-            self._anchor = (body, R_b.T @ (p_pad - p_b), R_b.T @ R_pad)
-            self._slip_mm[:] = 0.0
-            self._slip_deg = 0.0
-        _, p_rel, R_rel = self._anchor
-        p_a, R_a = p_b + R_b @ p_rel, R_b @ R_rel      # where the pad would be had it stuck to the body
-        moved = R_pad.T @ (p_pad - p_a) / MM           # pad's motion over the object, sensor frame, mm
-        turn = R_a.T @ R_pad
-        turned = math.degrees(math.atan2(turn[1, 0], turn[0, 0]))
-        # The gel surface stays on the object: relative to the pad it moves the other way.
-        shear = tang_n / self._k_shear_n_mm - moved[:2] + self._slip_mm
-        twist = math.degrees(torque_nmm / self._k_tors_nmm_rad) - turned + self._slip_deg
-        slipping = False
-        lim = mu * normal_n / self._k_shear_n_mm
-        size = float(np.hypot(*shear))
-        if size > lim:
-            new = shear * (lim / size)
-            self._slip_mm += new - shear
-            shear, slipping = new, True
-        lim_t = math.degrees(mu * normal_n * self._r_eff_mm / self._k_tors_nmm_rad)
-        if abs(twist) > lim_t:
-            new_t = math.copysign(lim_t, twist)
-            self._slip_deg += new_t - twist
-            twist, slipping = new_t, True
-        return shear, twist, slipping
+        return history.step(self.springs, body, self.pad_frame(), (d.xpos[body], d.xmat[body].reshape(3, 3)),
+                            normal_n, tang_n, torque_nmm, mu)
 
     # -- the frame ---------------------------------------------------------------------------------
     def protrusion_mm(self, gaps_mm: np.ndarray) -> np.ndarray:
@@ -363,11 +335,11 @@ class GelSightSensor:
                 found = None
         touch, slipping = None, False
         if found is None:
-            self._anchor = None
+            self.stick_slip.release()
         else:
             normal, tang, torque, mu, body = found
             prot = self.protrusion_mm(gaps)
-            shear, twist, slipping = self._stick_slip(body, normal, tang, torque, mu)
+            shear, twist, slipping = self.shear_twist(self.stick_slip, body, normal, tang, torque, mu)
             touch = Touch(prot, force_n=normal, shear_mm=tuple(shear), twist_deg=twist, warm=self._prev)
             timer.lap("geometry")
         imprint, markers, rgb = make_frame(touch, self._setup, seed=rng, noise=self.noise, timer=timer)
@@ -375,12 +347,12 @@ class GelSightSensor:
         # (the optics stage has always been "render" here)
         self.timings_ms = {("render" if k == "optics" else k): v * 1e3 for k, v in timer.take().items()}
         self.timings_ms["total"] = (timer.clock() - t0) * 1e3
-        xy = self._rest.copy() if markers is None or imprint is None else markers.xy_px
+        xy = self.rest_px.copy() if markers is None or imprint is None else markers.xy_px
         if imprint is None:
             h, w = prof.shape
-            return TactileFrame(rgb, xy, self._rest.copy(), 0.0, np.zeros(2), np.zeros((h, w), bool),
+            return TactileFrame(rgb, xy, self.rest_px.copy(), 0.0, np.zeros(2), np.zeros((h, w), bool),
                                 np.zeros((h, w), np.float32), np.zeros(2), 0.0, False, False, float(self.data.time))
-        return TactileFrame(rgb, xy, self._rest.copy(), float(normal), np.asarray(tang, float), imprint.contact_mask,
+        return TactileFrame(rgb, xy, self.rest_px.copy(), float(normal), np.asarray(tang, float), imprint.contact_mask,
                             imprint.depth_mm, np.asarray(shear, float), float(twist), True, bool(slipping),
                             float(self.data.time))
 

@@ -141,8 +141,6 @@ class PyrenderShader(Shader):
             sin_e = max(math.sin(math.radians(light.elevation_deg)), 1e-3)
             # pyrender: radiance = intensity / d^2; Lambertian BRDF = base / pi
             intensity = FLAT_LINEAR * math.pi * d_centre ** 2 / sin_e * light.intensity / len(maps)
-            spot = pr.SpotLight(color=gl_color(light.color_rgb), intensity=intensity,
-                                innerConeAngle=max(0.0, inner), outerConeAngle=outer)
             dist = np.linalg.norm(corners - eye, axis=1)
             fov = min(2 * spread + math.radians(4), math.radians(170))
             # pyrender's depth bias is 0.001 (1 - n.l) / w in the shadow map's [0, 1] depth, which is
@@ -151,7 +149,8 @@ class PyrenderShader(Shader):
             texel = 2 * d_centre * math.tan(fov / 2) / SHADOW_MAP_PX
             bias_mm = SHADOW_BIAS_TEXELS * texel / max(math.tan(math.radians(light.elevation_deg)), 0.1)
             znear = 0.001 * d_centre / bias_mm
-            self._fit_shadow_camera(spot, fov=fov, znear=znear, zfar=2.0 * float(dist.max()))
+            spot = _fitted_spot_light(pr, fov, znear, 2.0 * float(dist.max()), color=gl_color(light.color_rgb),
+                                      intensity=intensity, innerConeAngle=max(0.0, inner), outerConeAngle=outer)
             self.scene.add(spot, pose=_look_at(eye, np.zeros(3)))
         self.flags = pr.RenderFlags.SHADOWS_SPOT
         try:
@@ -163,22 +162,6 @@ class PyrenderShader(Shader):
         self.flat_rgb = flat_shading_rgb(maps)
         self.gain = profile.shading.gain_dn
         self.flat_linear = self._render_linear(np.zeros((h, w), np.float32))
-
-    def _fit_shadow_camera(self, spot, fov: float, znear: float, zfar: float) -> None:
-        """Give ``spot`` a shadow-map camera that just covers the gel.
-
-        pyrender's default spans twice the outer cone plus 11 degrees between
-        0.01x and 10x the scene size: for a grazing LED that spreads the 2048^2
-        shadow map and the depth range so thin that the gel shadows itself in
-        stripes ("shadow acne"). A tight frustum gives about twice the texel
-        density and a 20x finer depth step.
-        """
-        pr = self.pr
-
-        def shadow_camera(scene_scale, _fov=fov, _n=znear, _f=zfar):
-            return pr.PerspectiveCamera(yfov=_fov, znear=_n, zfar=_f, aspectRatio=1.0)
-
-        spot._get_shadow_camera = shadow_camera
 
     def _mesh(self, depth_mm: np.ndarray):
         import cv2
@@ -219,3 +202,19 @@ class PyrenderShader(Shader):
         if getattr(self, "renderer", None) is not None:
             self.renderer.delete()
             self.renderer = None
+
+
+def _fitted_spot_light(pr, fov: float, znear: float, zfar: float, **light):
+    """A pyrender spot light (``light``: its keywords) whose shadow-map camera just covers the gel.
+
+    pyrender's default spans twice the outer cone plus 11 degrees between 0.01x and 10x the scene size: for a
+    grazing LED that spreads the 2048^2 shadow map and the depth range so thin that the gel shadows itself in
+    stripes ("shadow acne"). A tight frustum (``fov`` rad, ``znear`` to ``zfar`` mm) gives about twice the texel
+    density and a 20x finer depth step. pyrender asks its light for that camera through a method, which this
+    subclass overrides (rather than replacing it on pyrender's object)."""
+
+    class FittedSpotLight(pr.SpotLight):
+        def _get_shadow_camera(self, scene_scale):
+            return pr.PerspectiveCamera(yfov=fov, znear=znear, zfar=zfar, aspectRatio=1.0)
+
+    return FittedSpotLight(**light)

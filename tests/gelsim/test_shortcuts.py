@@ -118,9 +118,9 @@ def test_press_drops_negligible_twist_only(setup, monkeypatch):
 def test_negligible_thresholds():
     profile = load_profile("vitac").with_resolution(160, 120)
     mm = profile.image.mm_per_px
-    assert sequence._negligible_px((0.001 * mm, 0.0), 0.0, profile) == (True, True)
-    assert sequence._negligible_px((0.1 * mm, 0.0), 0.0, profile) == (False, True)
-    assert sequence._negligible_px((0.0, 0.0), 0.01, profile) == (True, False)
+    assert sequence.negligible_px((0.001 * mm, 0.0), 0.0, profile) == (True, True)
+    assert sequence.negligible_px((0.1 * mm, 0.0), 0.0, profile) == (False, True)
+    assert sequence.negligible_px((0.0, 0.0), 0.01, profile) == (True, False)
 
 
 def test_twist_sequence_keeps_its_twist(setup, monkeypatch):
