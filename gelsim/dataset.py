@@ -81,7 +81,7 @@ class GenerateConfig:
 #: GenerateConfig fields that say where the frames are rendered, not what they hold.
 PLACEMENT = ("device", "batch")
 #: ``--stages``: what the torch backend runs on its device (GenerateConfig.stages).
-STAGES = ("optics", "all")
+DEVICE_STAGES = ("optics", "all")
 #: With ``--stages all``, sequences run in step on the device (frame t of each in one batch): a fabric's sequences
 #: (of one sensor unit), in groups of at most this many, as even as can be. A frame's device imprint depends on its
 #: batch's other frames by float rounding (docs/device.md), so the groups are fixed by the plan alone, never by
@@ -720,7 +720,7 @@ def check_render(config: GenerateConfig, fidelity) -> None:
 
     backend = config.render_backend(fidelity)
     check_choice("--backend", backend, BACKENDS)
-    check_choice("--stages", config.stages, STAGES)
+    check_choice("--stages", config.stages, DEVICE_STAGES)
     if backend != "torch":
         if config.device is not None or config.batch is not None or config.stages != "optics":
             raise GelsimError(f"--device, --batch and --stages are for --backend torch, not {backend}; add "

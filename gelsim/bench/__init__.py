@@ -55,7 +55,7 @@ from .levels import run_bench, run_benches
 from .metrics import ErrorAcc, accumulate, psnr_from_mse, ssim
 from .pitch import PITCH_FABRICS, PITCH_FORCE_N, PITCH_VARIANTS, pitch_markdown, pitch_plot, run_pitch_study
 from .reports import PARETO_PANELS, markdown_table, pareto_plot, write_reports
-from .runs import STAGES, LevelRun, make_renderer, run_level
+from .runs import TIMED_STAGES, LevelRun, make_renderer, run_level
 from .scenes import (DEFAULT_FABRICS, DEFAULT_FRAMES, DEFAULT_PRECONTACT, DEFAULT_RESOLUTION, DEFAULT_RESOLUTIONS,
                      LARGE_FRAMES, LARGE_PIXELS, QUICK, SCENE_SEED_STRIDE, SHORTCUT_FRAMES, SHORTCUT_PRECONTACT,
                      SPHERE_DIAMETER_MM, SPHERE_FORCE_N, SPHERE_FRICTION, BenchConfig, Scene, bench_profile,
@@ -67,7 +67,7 @@ __all__ = [
     "RunCache", "measured_run", "IMPRINT_METRICS", "SWEEP_HOLD", "SWEEPS", "convergence_markdown", "convergence_plot",
     "run_convergence", "write_convergence", "run_bench", "run_benches", "ErrorAcc", "accumulate", "psnr_from_mse",
     "ssim", "PITCH_FABRICS", "PITCH_FORCE_N", "PITCH_VARIANTS", "pitch_markdown", "pitch_plot", "run_pitch_study",
-    "PARETO_PANELS", "markdown_table", "pareto_plot", "write_reports", "STAGES", "LevelRun", "make_renderer",
+    "PARETO_PANELS", "markdown_table", "pareto_plot", "write_reports", "TIMED_STAGES", "LevelRun", "make_renderer",
     "run_level", "DEFAULT_FABRICS", "DEFAULT_FRAMES", "DEFAULT_PRECONTACT", "DEFAULT_RESOLUTION",
     "DEFAULT_RESOLUTIONS", "LARGE_FRAMES", "LARGE_PIXELS", "QUICK", "SCENE_SEED_STRIDE", "SHORTCUT_FRAMES",
     "SHORTCUT_PRECONTACT", "SPHERE_DIAMETER_MM", "SPHERE_FORCE_N", "SPHERE_FRICTION", "BenchConfig", "Scene",

@@ -15,7 +15,7 @@ from ..runtime import configure_worker
 from .cache import RunCache, measured_run
 from .metrics import ErrorAcc, accumulate
 from .reports import fmt, write_report
-from .runs import STAGES, LevelRun, bench_settings, make_renderer, warm_up
+from .runs import TIMED_STAGES, LevelRun, bench_settings, make_renderer, warm_up
 from .scenes import BenchConfig, bench_profile, prepare_scene, scene_motion, scenes_for
 from .texture import SceneTexture, fast_shader
 
@@ -84,7 +84,7 @@ def run_convergence(config: BenchConfig = BenchConfig(), base: str = "balanced",
             renderer = None if physics_only else make_renderer(profile, fid, config.seed)
             shader = None if physics_only else fast_shader(profile, fid, config.seed)
             acc = ErrorAcc()
-            secs = {s: 0.0 for s in STAGES}
+            secs = {s: 0.0 for s in TIMED_STAGES}
             n = 0
             per_scene = {}
             try:

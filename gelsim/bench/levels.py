@@ -10,7 +10,7 @@ from ..fidelity import Fidelity, get_fidelity
 from ..runtime import configure_worker
 from .cache import RunCache, measured_run
 from .metrics import ErrorAcc, accumulate
-from .runs import STAGES, LevelRun, bench_settings, make_renderer, warm_up
+from .runs import TIMED_STAGES, LevelRun, bench_settings, make_renderer, warm_up
 from .scenes import BenchConfig, bench_profile, scene_motion, scenes_for
 from .shortcuts import run_shortcut_study
 from .texture import SceneTexture, fast_shader
@@ -50,7 +50,7 @@ def run_bench(config: BenchConfig = BenchConfig(), progress: Callable[[str], Non
         renderer = make_renderer(profile, fid, config.seed)
         shader = fast_shader(profile, fid, config.seed)
         acc = ErrorAcc()
-        secs = {s: 0.0 for s in STAGES}
+        secs = {s: 0.0 for s in TIMED_STAGES}
         cpu = wall = 0.0
         nframes = cached = 0
         per_scene = []

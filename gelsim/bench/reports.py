@@ -6,7 +6,7 @@ from pathlib import Path
 
 from ..atomic import atomic_write_json, atomic_write_text, write_figure
 from ..errors import GelsimError
-from .runs import STAGES
+from .runs import TIMED_STAGES
 
 
 def runs_of(doc: dict) -> list[dict]:
@@ -75,23 +75,23 @@ def markdown_table(doc: dict) -> str:
                 lines.append(f"| {sc} | " + " | ".join(cells) + " |")
         lines += ["", "Time per frame: end to end (process CPU, all threads; wall) and by stage (CPU ms; "
                   "pyrender's OpenGL threads count under optics):", "",
-                  "| level | CPU ms/frame | wall ms/frame | " + " | ".join(STAGES) + " |",
-                  "|---" * (3 + len(STAGES)) + "|"]
+                  "| level | CPU ms/frame | wall ms/frame | " + " | ".join(TIMED_STAGES) + " |",
+                  "|---" * (3 + len(TIMED_STAGES)) + "|"]
         for lv in levels:
             st = lv["stages_ms"]
             lines.append(f"| {lv['name']} | {lv['cpu_ms_per_frame']:.1f} | {fmt(lv.get('wall_ms_per_frame'), 1)} | "
-                         + " | ".join(f"{st.get(k, 0.0):.1f}" for k in STAGES) + " |")
+                         + " | ".join(f"{st.get(k, 0.0):.1f}" for k in TIMED_STAGES) + " |")
         if r.get("shortcuts"):
             lines += ["", f"Shortcuts: the same scenes as {s.get('shortcut_frames', '?')}-frame sequences "
                       f"({s.get('shortcut_precontact', '?')} before contact, as in ViTac Cloth), one contact each; "
                       "differences against the run with all shortcuts:", "",
-                      "| level | variant | CPU ms/frame | " + " | ".join(STAGES)
+                      "| level | variant | CPU ms/frame | " + " | ".join(TIMED_STAGES)
                       + " | max pixel diff (DN) | max marker diff (px) | max indentation diff (mm) |",
-                      "|---" * (3 + len(STAGES) + 3) + "|"]
+                      "|---" * (3 + len(TIMED_STAGES) + 3) + "|"]
             for row in r["shortcuts"]:
                 st = row["stages_ms"]
                 lines.append(f"| {row['level']} | {row['variant']} | {row.get('cpu_ms_per_frame', float('nan')):.1f} | "
-                             + " | ".join(f"{st.get(k, 0.0):.1f}" for k in STAGES)
+                             + " | ".join(f"{st.get(k, 0.0):.1f}" for k in TIMED_STAGES)
                              + f" | {row['max_abs_dn']:.0f} | {row['max_marker_px']:.4f} | "
                                f"{row['max_indentation_mm']:.2e} |")
         lines.append("")

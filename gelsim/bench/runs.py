@@ -27,7 +27,7 @@ from .scenes import BenchConfig, Scene, prepare_scene, scene_motion
 #: generation worker is timed: one thread on one core; wall time would count the other processes' turns
 #: on a shared machine). The end-to-end figure is the process's CPU time, which also counts helper
 #: threads (OpenGL's).
-STAGES = ("fabric", "physics", "imprint", "markers", "optics", "encode")
+TIMED_STAGES = ("fabric", "physics", "imprint", "markers", "optics", "encode")
 
 
 @dataclass
@@ -75,7 +75,7 @@ def run_level(scene: Scene, motion: Motion, profile: SensorProfile, fidelity: Fi
                                                           fps=profile.image.fps_hz)))
         labels, seconds = drain(render_sequence(obj, motion, profile, fidelity, seed=scene.seed, options=options),
                                 sinks)
-    secs = {s: 0.0 for s in STAGES}
+    secs = {s: 0.0 for s in TIMED_STAGES}
     secs.update(seconds)
     secs["fabric"] += fab_s
     secs["physics"] = phys_s

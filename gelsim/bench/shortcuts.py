@@ -8,7 +8,7 @@ import numpy as np
 
 from ..contact import simulate
 from ..fidelity import get_fidelity
-from .runs import STAGES, LevelRun, make_renderer, run_level
+from .runs import TIMED_STAGES, LevelRun, make_renderer, run_level
 from .scenes import BenchConfig, prepare_scene, scene_motion
 
 
@@ -36,7 +36,7 @@ def run_shortcut_study(config: BenchConfig, profile, catalog, scenes, *, progres
                 ("labels only", True, ()))
     for label, sc_on, outputs in variants:
         renderer = make_renderer(profile, fid, config.seed) if outputs else None
-        secs = {s: 0.0 for s in STAGES}
+        secs = {s: 0.0 for s in TIMED_STAGES}
         n = 0
         cpu = 0.0
         dmax = {"max_abs_dn": 0.0, "max_marker_px": 0.0, "max_indentation_mm": 0.0}

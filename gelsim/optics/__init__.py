@@ -38,8 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import GelsimError, check_choice
-from . import composite
-from .composite import FrameInput, Optics, check_depth, frame_rng
+from .composite import OPTICS_STAGES, FrameInput, Optics, OpticsInput, Stage, check_depth, frame_rng
 from .ops.filters import blur_radius_px, gaussian_blur
 from .ops.readout import to_uint8
 from .ops.resample import upsample
@@ -47,7 +46,7 @@ from .shader import Shader, shader_class, work_array
 
 BACKENDS = ("fast", "pyrender", "torch")
 
-__all__ = ["Renderer", "render", "available_backends", "check_depth", "BACKENDS", "Shader"]
+__all__ = ["Renderer", "render", "available_backends", "check_depth", "BACKENDS", "Shader", "OpticsInput"]
 
 
 def available_backends() -> list[str]:
@@ -71,15 +70,17 @@ class Renderer:
     ``"pyrender"`` or ``"torch"``; ``supersample``: shade and draw at this many times the
     resolution (1-4), then area-average down; ``seed``: fixes the background's
     random illumination field and the noise bank; ``device``: where the ``torch``
-    backend computes (``"cpu"``, ``"cuda"``; default the CPU), for no other backend.
+    backend computes (``"cpu"``, ``"cuda"``; default the CPU), for no other backend; ``stages``: the
+    stages after the shading, in order, the readout last (default
+    :data:`~gelsim.optics.composite.OPTICS_STAGES`; a test or a study gives its own list).
 
     Public inputs, read by :class:`~gelsim.optics.torch_backend.BatchRenderer`: ``optics``
     (:class:`~gelsim.optics.composite.Optics`), ``shader`` (the backend's
-    :class:`~gelsim.optics.shader.Shader`), ``stages`` (:data:`~gelsim.optics.composite.STAGES`, built).
+    :class:`~gelsim.optics.shader.Shader`), ``stages`` (the list, built).
     """
 
     def __init__(self, profile, backend: str = "fast", *, supersample: int = 1, seed: int = 0,
-                 device: str | None = None):
+                 device: str | None = None, stages: tuple[type[Stage], ...] = OPTICS_STAGES):
         check_choice("render backend", backend, BACKENDS)
         if device is not None and backend != "torch":
             raise GelsimError(f"--device {device} is for the torch backend, not {backend!r}; add --backend torch "
@@ -95,7 +96,12 @@ class Renderer:
         fine, maps = self.optics.fine, self.optics.maps
         cls = shader_class(backend, profile)
         self.shader: Shader = cls(fine, maps, device=device) if backend == "torch" else cls(fine, maps)
-        self.stages = [stage(self.optics) for stage in composite.STAGES]
+        self.stages = [stage(self.optics) for stage in stages]
+        names = [st.name for st in self.stages]
+        if not self.stages or not self.stages[-1].final or any(st.final for st in self.stages[:-1]) \
+                or len(set(names)) != len(names):
+            raise GelsimError(f"optics stages {names}: give stages of distinct names with the readout (the final "
+                              "stage) last, once")
         self._shape, self._fine_shape = profile.shape, self.optics.fine.shape + (3,)
         self._bufs: dict[str, np.ndarray] = {}
         # the last flat gel's frame after the stages before the readout, and those stages' states: reused
@@ -113,7 +119,7 @@ class Renderer:
 
     def render_float(self, depth_mm: np.ndarray | None, markers=None, *, gains=None) -> np.ndarray:
         """The noiseless, unquantised frame: float32 ``(H, W, 3)`` DN (may leave 0-255 before saturation)."""
-        return self._run(depth_mm, markers, gains=gains).copy()
+        return self._run(OpticsInput(depth_mm, markers, gains), False).copy()
 
     def render(self, depth_mm: np.ndarray | None, markers=None, *, seed: int | np.random.Generator = 0,
                noise: bool = True, gains=None) -> np.ndarray:
@@ -125,26 +131,38 @@ class Renderer:
         (same seed, same frame); ``noise``: False for a noiseless frame; ``gains``: the camera's
         per-channel gains (3,) before the noise (:class:`~gelsim.optics.composite.CameraGains`; None: 1).
         """
-        return self._run(depth_mm, markers, frame_rng(seed), noise, gains)
+        return self._run(OpticsInput(depth_mm, markers, gains, seed, noise), True)
 
-    def _run(self, depth_mm, markers, rng=None, noise: bool = True, gains=None) -> np.ndarray:
-        """The frame through the shading and the stages: uint8 with ``rng`` (:func:`~gelsim.optics.composite.frame_rng`,
-        each stage drawing from it in turn), else the float frame before the readout (the cached background itself, or a work buffer
-        that the next frame overwrites: callers must not modify or keep it).
+    def render_input(self, inputs: OpticsInput) -> np.ndarray:
+        """One camera frame, uint8 ``(H, W, 3)`` RGB, of a frame's inputs in one object (:class:`OpticsInput`:
+        what :meth:`render` takes by name)."""
+        return self._run(inputs, True)
+
+    def _run(self, inputs: OpticsInput, final: bool) -> np.ndarray:
+        """The frame through the shading and the stages: uint8 when ``final`` (each stage drawing from the
+        frame's generator, :func:`~gelsim.optics.composite.frame_rng` of ``inputs.seed``, in turn), else the
+        float frame before the readout (the cached background itself, or a work buffer that the next frame
+        overwrites: callers must not modify or keep it).
 
         Where every stage with something to do works on bands of rows (no supersampling), the shader
         hands each band of a shaded frame to them as soon as its rows are final, while they are in the
         cache (:meth:`Shader.compose`'s ``finish``): the frame's float32 copy is then never written to
         memory (8 MB at 960x720)."""
-        final = rng is not None
-        depth = check_depth(depth_mm, self._shape)
+        depth = check_depth(inputs.depth_mm, self._shape)
         if depth is not None and self.supersample > 1:
             depth = upsample(depth, self.supersample, self._fine_shape[:2])
-        inp = FrameInput(depth, markers, self._fine_shape, gains)
         stages = self.stages if final else [st for st in self.stages if not st.final]
+        draws = {}
+        if final:
+            rng = frame_rng(inputs.seed)
+            for st in stages:
+                d = st.draw(rng, inputs.noise)
+                if d is not None:
+                    draws[st.name] = d
+        inp = FrameInput(depth, inputs.markers, self._fine_shape, inputs.gains, draws)
         active = []
         for st in stages:
-            state = st.prepare(inp, st.draw(rng, noise) if final else None)
+            state = st.prepare(inp)
             if state is not None:
                 active.append((st, state))
         bg, sigma = self.optics.background_fine, self.optics.blur_sigma_px

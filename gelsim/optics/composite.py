@@ -7,7 +7,8 @@ A frame is composed in this order, in float32 DN until the readout:
    blurred by the camera within the imprint's box (a calibrated table, or Lambert + Phong from the
    LEDs), then, with a table, its terms in :class:`~gelsim.optics.lut.TableModel`'s order: the LEDs'
    soft shadows and the depth and halo terms;
-2. the **stages** of :data:`STAGES`, in order: :class:`Markers` (``x (1 - darkness * blur(coverage))``),
+2. the **stages** of the renderer's list (default :data:`OPTICS_STAGES`), in order: :class:`MarkerShading`
+   (``x (1 - darkness * blur(coverage))``),
    :class:`CameraGains` (the webcam's exposure and white balance, a per-channel gain per frame; only with
    a nuisance level, :mod:`gelsim.nuisance`), :class:`AreaAverage` (supersampling's average back down), :class:`Readout` (camera noise, then
    8-bit quantisation; always last).
@@ -18,8 +19,13 @@ this one list: :class:`gelsim.optics.Renderer` one frame at a time in numpy, ban
 rows are in the cache where every stage allows it, and
 :class:`gelsim.optics.torch_backend.BatchRenderer` ``B`` frames at once on a device. Adding a stage
 (a nuisance of the image, say) is writing a :class:`Stage` subclass with both kernels and inserting
-it into :data:`STAGES`; both backends then run it in its place, and its random draws (if any) come
-from each frame's seed in the list's order.
+it into the list (:data:`OPTICS_STAGES`, or a renderer's ``stages=`` argument); both backends then run it
+in its place, and its random draws (if any) come from each frame's seed in the list's order.
+
+A frame's inputs travel in one object, :class:`OpticsInput` (the depth to render, the markers, the camera's
+gains, where its random draws come from), from whoever makes the frame to the renderer, which hands each
+stage what it reads in the prepared form (:class:`FrameInput` for a numpy frame, :class:`BatchInput` for a
+torch batch, each with the frame's draws by stage name).
 
 The inputs every backend reads are public and built once per renderer (:class:`Optics`: the
 resolutions, light maps, background, camera blur, noise bank), so that no backend reads another's
@@ -28,7 +34,8 @@ state.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any, Mapping
 
 import cv2
 import numpy as np
@@ -40,8 +47,8 @@ from .ops.markers import apply_marker_factors, fine_px, marker_corners, marker_f
 from .ops.readout import NoiseBank, readout_torch, to_uint8_rows
 from .ops.resample import area_mean, area_mean_torch
 
-__all__ = ["Optics", "FrameInput", "BatchInput", "Stage", "Markers", "CameraGains", "AreaAverage", "Readout", "STAGES",
-           "check_depth", "frame_rng", "marker_corners"]
+__all__ = ["Optics", "OpticsInput", "FrameInput", "BatchInput", "Stage", "MarkerShading", "CameraGains", "AreaAverage",
+           "Readout", "OPTICS_STAGES", "check_depth", "frame_rng", "marker_corners"]
 
 
 @dataclass(frozen=True)
@@ -116,25 +123,53 @@ def frame_rng(seed: int | np.random.Generator):
     return rng
 
 
+@dataclass(frozen=True)
+class OpticsInput:
+    """One frame's inputs to the optics, in one object from whoever makes the frame to the renderer.
+
+    ``depth_mm``: the depth the optics render, float32 ``(H, W)`` mm >= 0 (the imprint plus the nuisance's
+    dents: :func:`gelsim.stream.render_depth`), or None for the flat gel (a tensor on a device for the torch
+    batch renderer's :meth:`~gelsim.optics.torch_backend.BatchRenderer.frames`); ``markers``: an object with
+    ``.corners_px`` float32 ``(N, 4, 2)`` px, such an array, or None; ``gains``: the camera's per-channel gains
+    ``(3,)`` (:class:`CameraGains`) or None (all 1); ``seed``: where the frame's random draws come from (an
+    int, or the sequence's Generator, drawn from in frame order); ``noise``: False for a noiseless frame."""
+    depth_mm: Any = None
+    markers: Any = None
+    gains: Any = None
+    seed: int | np.random.Generator = 0
+    noise: bool = True
+
+
 @dataclass
 class FrameInput:
-    """One frame's inputs to the numpy stages: ``depth`` the imprint at the fine resolution (float32 mm,
-    validated) or None; ``markers`` as given to :meth:`Renderer.render` (output pixels); ``shape`` the
-    fine frame's ``(sH, sW, 3)``; ``gains`` the camera's per-channel gains ``(3,)`` or None (all 1)."""
+    """One frame's inputs as the numpy stages read them: ``depth`` the depth to render at the fine
+    resolution (float32 mm, validated) or None; ``markers`` as :class:`OpticsInput`'s (output pixels);
+    ``shape`` the fine frame's ``(sH, sW, 3)``; ``gains`` the camera's per-channel gains ``(3,)`` or None (all
+    1); ``draws`` the frame's random draws by stage name (:meth:`Stage.draw`'s; empty for an unquantised
+    frame, which draws nothing)."""
     depth: np.ndarray | None
     markers: object
     shape: tuple[int, int, int]
     gains: np.ndarray | None = None
+    draws: Mapping[str, object] = field(default_factory=dict)
 
 
 @dataclass
 class BatchInput:
-    """``B`` frames' inputs to the torch stages: ``depth`` ``(B, sH, sW)`` mm at the fine resolution and
-    ``corners`` ``(B, N, 4, 2)`` output pixels (None without markers), tensors on the device; ``gains``
-    each frame's camera gains ``(3,)`` or None, a list (None: no frame has any)."""
+    """``B`` frames' inputs as the torch stages read them: ``depth`` ``(B, sH, sW)`` mm at the fine resolution
+    and ``corners`` ``(B, N, 4, 2)`` output pixels (None without markers), tensors on the device; ``gains``
+    each frame's camera gains ``(3,)`` or None, a list (None: no frame has any); ``draws`` each frame's random
+    draws by stage name (a list of mappings or None; None: nothing drawn)."""
     depth: object
     corners: object
     gains: list | None = None
+    draws: list | None = None
+
+    def draws_of(self, stage: "Stage", n: int) -> list:
+        """``stage``'s draw of each of the ``n`` frames (None where it drew nothing)."""
+        if self.draws is None:
+            return [None] * n
+        return [None if d is None else d.get(stage.name) for d in self.draws]
 
 
 class Stage(ABC):
@@ -143,7 +178,7 @@ class Stage(ABC):
 
     ``banded``: the numpy kernel works on any band of a frame's rows alone, in place (so the renderer
     can run it while the band is in the cache); False: it needs the whole frame and returns a new one.
-    ``final``: the readout, last in :data:`STAGES`; it turns the float frame into the camera's uint8
+    ``final``: the readout, last in the list; it turns the float frame into the camera's uint8
     frame (its :meth:`apply` reads the rows and writes its own output, :meth:`result`), and is skipped
     for an unquantised frame (:meth:`Renderer.render_float`, :meth:`BatchRenderer.compose`)."""
 
@@ -156,14 +191,16 @@ class Stage(ABC):
 
     def draw(self, rng, noise: bool):
         """This stage's random draws for one frame from the frame's generator ``rng()`` (:func:`frame_rng`;
-        the stages draw in :data:`STAGES`' order; ``noise`` False: a noiseless frame). Default: none (None)."""
+        the stages draw in their list's order; ``noise`` False: a noiseless frame). Default: none (None).
+        The renderer hands them back in the frame's input (``draws[name]``)."""
         return None
 
     @abstractmethod
-    def prepare(self, frame: FrameInput, draw):
-        """numpy: this frame's state for :meth:`apply` (``draw``: :meth:`draw`'s), or None where the stage
-        leaves the frame as it is. A stage returns the same state object for the same inputs where it
-        can (the renderer then reuses a flat gel's frame)."""
+    def prepare(self, frame: FrameInput):
+        """numpy: this frame's state for :meth:`apply` (reading what it needs of ``frame``, its draw
+        ``frame.draws.get(self.name)`` included), or None where the stage leaves the frame as it is. A stage
+        returns the same state object for the same inputs where it can (the renderer then reuses a flat
+        gel's frame)."""
 
     @abstractmethod
     def apply(self, rows: np.ndarray, y0: int, state) -> np.ndarray:
@@ -171,16 +208,16 @@ class Stage(ABC):
         that is not ``banded``) after this stage, in place for a ``banded`` stage."""
 
     @abstractmethod
-    def apply_torch(self, frames, batch: BatchInput, draws: list):
-        """torch kernel: ``frames`` ``(B, 3, H, W)`` DN after this stage (``draws``: each frame's
-        :meth:`draw`, or None)."""
+    def apply_torch(self, frames, batch: BatchInput):
+        """torch kernel: ``frames`` ``(B, 3, H, W)`` DN after this stage (reading what it needs of ``batch``,
+        its draws :meth:`BatchInput.draws_of` included)."""
 
     def result(self, state) -> np.ndarray:
         """The ``final`` stage's output once every row of the frame went through :meth:`apply`."""
         raise NotImplementedError(f"{self.name} is not the final stage")
 
 
-class Markers(Stage):
+class MarkerShading(Stage):
     """The frame times ``1 - darkness * blur(coverage)`` of the profile's markers
     (:mod:`gelsim.optics.ops.markers`), at the shading resolution. A frame's factors are reused while its
     markers do not move (a sequence's frames before contact: about 1 ms each at 960x720)."""
@@ -194,7 +231,7 @@ class Markers(Stage):
         self.darkness = float(mk.darkness)
         self._last = None                    # (corners, shape, factors) of the last frame
 
-    def prepare(self, frame: FrameInput, draw):
+    def prepare(self, frame: FrameInput):
         corners = marker_corners(frame.markers) if self.enabled else None
         if corners is None:
             return None
@@ -211,7 +248,7 @@ class Markers(Stage):
         apply_marker_factors(rows, state, y0)
         return rows
 
-    def apply_torch(self, frames, batch, draws):
+    def apply_torch(self, frames, batch):
         if not self.enabled or batch.corners is None:
             return frames
         s = self.optics.supersample
@@ -239,15 +276,15 @@ class CameraGains(Stage):
 
     name = "camera gains"
 
-    def prepare(self, frame: FrameInput, draw):
+    def prepare(self, frame: FrameInput):
         return check_gains(frame.gains)
 
     def apply(self, rows, y0, state):
         rows *= state
         return rows
 
-    def apply_torch(self, frames, batch, draws):
-        gains = None if batch is None else batch.gains
+    def apply_torch(self, frames, batch):
+        gains = batch.gains
         if gains is None or all(g is None for g in gains):
             return frames
         import torch
@@ -263,13 +300,13 @@ class AreaAverage(Stage):
     name = "area average"
     banded = False
 
-    def prepare(self, frame, draw):
+    def prepare(self, frame):
         return self if self.optics.supersample > 1 else None
 
     def apply(self, rows, y0, state):
         return area_mean(rows, self.optics.supersample)
 
-    def apply_torch(self, frames, batch, draws):
+    def apply_torch(self, frames, batch):
         return area_mean_torch(frames, self.optics.supersample)
 
 
@@ -295,8 +332,8 @@ class Readout(Stage):
         n = self.optics.noise
         return n.offsets(rng()) if noise and n.active else None
 
-    def prepare(self, frame, draw):
-        return _Readout(draw, np.empty(self._shape, np.uint8))
+    def prepare(self, frame):
+        return _Readout(frame.draws.get(self.name), np.empty(self._shape, np.uint8))
 
     def apply(self, rows, y0, state):
         if state.offsets is None:
@@ -309,8 +346,9 @@ class Readout(Stage):
         """The uint8 ``(H, W, 3)`` frame."""
         return state.out
 
-    def apply_torch(self, frames, batch, draws):
+    def apply_torch(self, frames, batch):
         noise = self.optics.noise
+        draws = batch.draws_of(self, frames.shape[0])
         if not noise.active:
             return readout_torch(frames, None, noise, draws)
         if frames.device not in self._banks:
@@ -318,5 +356,6 @@ class Readout(Stage):
         return readout_torch(frames, self._banks[frames.device], noise, draws)
 
 
-#: The stages after the shading, in order (the readout last).
-STAGES: tuple[type[Stage], ...] = (Markers, CameraGains, AreaAverage, Readout)
+#: The stages after the shading, in order (the readout last): every renderer's unless it is given its own list
+#: (``Renderer(..., stages=)``). A tuple: nothing changes it at run time.
+OPTICS_STAGES: tuple[type[Stage], ...] = (MarkerShading, CameraGains, AreaAverage, Readout)

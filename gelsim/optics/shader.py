@@ -13,7 +13,7 @@ the Renderer composes the background, markers, blur and noise around it (:mod:`g
 * :meth:`Shader.close` (default: nothing): free what the backend holds (a GL context).
 
 The Renderer calls only ``compose`` and ``close``; the defaults give every backend both. Backends are
-looked up by name in :data:`BACKENDS` and checked against this contract when loaded
+looked up by name in :data:`SHADER_CLASSES` and checked against this contract when loaded
 (:func:`shader_class`), so a backend that misses a method or changes a signature fails at once with one
 line instead of mid-render.
 """
@@ -34,7 +34,7 @@ Roi = tuple[slice, slice]
 
 #: Shading backends by name: module and class. "lut" is the fast backend with a calibrated table
 #: (a profile's ``[shading] model = "lut"``).
-BACKENDS: dict[str, tuple[str, str]] = {
+SHADER_CLASSES: dict[str, tuple[str, str]] = {
     "fast": ("gelsim.optics.fast", "FastShader"),
     "lut": ("gelsim.optics.lut", "LutShader"),
     "pyrender": ("gelsim.optics.pyrender_backend", "PyrenderShader"),
@@ -142,7 +142,7 @@ def shader_class(backend: str, profile) -> type[Shader]:
     "fast" with a calibrated table (``[shading] model = "lut"``) is the "lut" backend ("torch" reads
     either shading model itself)."""
     key = "lut" if backend == "fast" and profile.shading.model == "lut" else backend
-    if key not in BACKENDS:
+    if key not in SHADER_CLASSES:
         raise GelsimError(f"unknown render backend {backend!r}; choose one of fast, pyrender, torch")
-    module, name = BACKENDS[key]
+    module, name = SHADER_CLASSES[key]
     return check_shader(getattr(importlib.import_module(module), name), key)

@@ -37,7 +37,7 @@ import os
 import numpy as np
 
 from ..errors import GelsimError
-from .composite import BatchInput, check_depth, frame_rng, marker_corners
+from .composite import BatchInput, OpticsInput, check_depth, frame_rng, marker_corners
 from .ops import torch_module
 from .ops.box import MARGIN_PX, box_mask_torch
 from .ops.filters import blur_radius_px, gaussian_blur_torch, slopes_torch
@@ -178,7 +178,8 @@ class TorchShader(Shader):
 class BatchRenderer:
     """``B`` frames at once through ``renderer`` (a :class:`~gelsim.optics.Renderer` made with backend
     ``"torch"``): its inputs (:attr:`~gelsim.optics.Renderer.optics`), its shader and its stages (the
-    composition, :data:`~gelsim.optics.composite.STAGES`), each stage's torch kernel on the shader's device.
+    composition, the renderer's list of :class:`~gelsim.optics.composite.Stage`), each stage's torch kernel on
+    the shader's device.
 
     Inputs per frame as :meth:`Renderer.render` takes them: the imprint float32 ``(H, W)`` mm or None,
     the markers (an object with ``.corners_px``, an ``(N, 4, 2)`` array, or None) and the noise seed (an
@@ -206,11 +207,15 @@ class BatchRenderer:
     # ------------------------------------------------------------ inputs
 
     def draw(self, seed, noise: bool = True):
-        """This frame's random draws, one per stage (the readout's: the noise's offsets ``(bank frame, row,
+        """This frame's random draws by stage name (the readout's: the noise's offsets ``(bank frame, row,
         column)``), drawn from ``seed`` as the numpy renderer draws them; None where nothing is drawn."""
         rng = frame_rng(seed)
-        draws = tuple(st.draw(rng, noise) for st in self.stages)
-        return None if all(d is None for d in draws) else draws
+        draws = {}
+        for st in self.stages:
+            d = st.draw(rng, noise)
+            if d is not None:
+                draws[st.name] = d
+        return draws or None
 
     def stage(self, depths, markers):
         """A batch's inputs for :meth:`compose`, validated as the numpy renderer validates them: ``(depth,
@@ -268,41 +273,50 @@ class BatchRenderer:
             frame = frame + part
         if gains is not None and len(gains) != len(d):
             raise GelsimError(f"{len(gains)} frames' gains for a batch of {len(d)}; give one (or None) per frame")
-        batch = BatchInput(d, None if corners is None else self._to_device(corners), gains)
-        for i, st in enumerate(self.stages[:self._final]):
-            frame = st.apply_torch(frame, batch, _column(draws, i, len(d)))
+        batch = BatchInput(d, None if corners is None else self._to_device(corners), gains, draws)
+        for st in self.stages[:self._final]:
+            frame = st.apply_torch(frame, batch)
         return frame
 
     def quantise(self, frame, offsets: list):
         """``frame`` (:meth:`compose`) through the readout: each frame's noise (``offsets``: its :meth:`draw`,
         None for a noiseless frame), rounded half to even and saturated: uint8 ``(B, H, W, 3)`` RGB on the
         device."""
-        st = self.stages[self._final]
-        return st.apply_torch(frame, None, _column(offsets, self._final, frame.shape[0]))
+        return self.stages[self._final].apply_torch(frame, BatchInput(None, None, None, offsets))
+
+    def frames(self, depth, corners, draws: list, gains: list | None = None):
+        """uint8 ``(B, H, W, 3)`` RGB on the device from depth float32 ``(B, H, W)`` mm and corners float32
+        ``(B, N, 4, 2)`` px (or None) already on a device (:meth:`stage`'s form), each frame's :meth:`draw` and
+        camera gains (or None)."""
+        corners = corners if self.profile.markers.enabled else None
+        return self.quantise(self.compose(depth, corners, draws, gains), draws)
+
+    def render_inputs(self, inputs: list) -> np.ndarray:
+        """uint8 ``(B, H, W, 3)`` RGB of frames given as :class:`~gelsim.optics.composite.OpticsInput` objects
+        (each frame's draws made from its ``seed``, in order)."""
+        draws = [self.draw(i.seed, i.noise) for i in inputs]
+        depth, corners = self.stage([i.depth_mm for i in inputs], [i.markers for i in inputs])
+        gains = [i.gains for i in inputs]
+        gains = None if all(g is None for g in gains) else gains
+        return self.quantise(self.compose(depth, corners, draws, gains), draws).cpu().numpy()
 
     def render(self, depths: list, markers: list | None = None, seeds: list | None = None, *,
                noise: bool = True, gains: list | None = None) -> np.ndarray:
         """uint8 ``(B, H, W, 3)`` RGB: the frames :meth:`Renderer.render` gives for the same inputs (within
         the stated tolerance); ``seeds`` one per frame (default 0)."""
         n = len(depths)
+        if gains is not None and len(gains) != n:
+            raise GelsimError(f"{len(gains)} frames' gains for a batch of {n}; give one (or None) per frame")
         markers = markers if markers is not None else [None] * n
         seeds = seeds if seeds is not None else [0] * n
-        draws = [self.draw(s, noise) for s in seeds]
-        depth, corners = self.stage(depths, markers)
-        return self.quantise(self.compose(depth, corners, draws, gains), draws).cpu().numpy()
+        gains = gains if gains is not None else [None] * n
+        return self.render_inputs([OpticsInput(d, m, g, s, noise) for d, m, g, s in zip(depths, markers, gains, seeds)])
 
     def render_float(self, depths: list, markers: list | None = None, *, gains: list | None = None) -> np.ndarray:
         """Noiseless, unquantised frames: float32 ``(B, H, W, 3)`` DN (as :meth:`Renderer.render_float`)."""
         markers = markers if markers is not None else [None] * len(depths)
         depth, corners = self.stage(depths, markers)
         return np.ascontiguousarray(self.compose(depth, corners, None, gains).permute(0, 2, 3, 1).cpu().numpy())
-
-
-def _column(draws: list | None, i: int, n: int) -> list:
-    """Stage ``i``'s draw of each of ``n`` frames (:meth:`BatchRenderer.draw`'s tuples, or None)."""
-    if draws is None:
-        return [None] * n
-    return [None if d is None else d[i] for d in draws]
 
 
 def _check_tensor(t, shape: tuple, what: str, bad=None, why: str = ""):

@@ -90,25 +90,25 @@ def test_the_gain_kernels_numpy_and_torch_give_the_same_bits_for_any_batch():
     gains = list(rng.uniform(0.0, 2.0, (3, 3)))
     ref = []
     for f, g in zip(frames, gains):
-        state, out = st.prepare(FrameInput(None, None, f.shape, g), None), f.copy()
+        state, out = st.prepare(FrameInput(None, None, f.shape, g)), f.copy()
         st.apply(out[:10], 0, state)
         st.apply(out[10:], 10, state)
         ref.append(out)
     ref = np.stack(ref)
     t = torch.from_numpy(frames).permute(0, 3, 1, 2).contiguous()
-    whole = st.apply_torch(t, BatchInput(None, None, gains), [None] * 3).permute(0, 2, 3, 1).numpy()
-    one = np.concatenate([st.apply_torch(t[i:i + 1], BatchInput(None, None, gains[i:i + 1]), [None])
+    whole = st.apply_torch(t, BatchInput(None, None, gains)).permute(0, 2, 3, 1).numpy()
+    one = np.concatenate([st.apply_torch(t[i:i + 1], BatchInput(None, None, gains[i:i + 1]))
                           .permute(0, 2, 3, 1).numpy() for i in range(3)])
     assert np.array_equal(whole, ref) and np.array_equal(one, ref)
     assert not np.array_equal(ref[0], frames[0])
-    assert st.prepare(FrameInput(None, None, frames[0].shape), None) is None                 # no gains: nothing
-    assert st.apply_torch(t, BatchInput(None, None, None), [None] * 3) is t
+    assert st.prepare(FrameInput(None, None, frames[0].shape)) is None                 # no gains: nothing
+    assert st.apply_torch(t, BatchInput(None, None, None)) is t
 
 
 @pytest.mark.parametrize("call", [
     lambda: check_gains([1, -1, 1]),
     lambda: check_gains([1, 1]),
-    lambda: CameraGains(None).apply_torch(torch.zeros(2, 3, 4, 4), BatchInput(None, None, [[1, 1, 1], [1, 1]]), [None] * 2),
+    lambda: CameraGains(None).apply_torch(torch.zeros(2, 3, 4, 4), BatchInput(None, None, [[1, 1, 1], [1, 1]])),
     lambda: exposure_gains([1.0, 0.0], 0.5, EXP),
     lambda: exposure_gains([1.0, float("nan")], 0.5, EXP),
     lambda: exposure_start(-0.1, EXP),

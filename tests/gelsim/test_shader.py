@@ -32,7 +32,7 @@ class Box(sh.Shader):
 def test_every_registered_backend_satisfies_the_contract(prof):
     import importlib
 
-    for key, (module, name) in sh.BACKENDS.items():
+    for key, (module, name) in sh.SHADER_CLASSES.items():
         cls = getattr(importlib.import_module(module), name)
         assert sh.check_shader(cls, key) is cls and cls.name
     assert sh.shader_class("fast", prof).name == "fast"
@@ -80,7 +80,7 @@ def test_renderer_refuses_a_broken_backend_when_loading_it(prof, monkeypatch):
 
     mod.Broken = Broken
     monkeypatch.setitem(__import__("sys").modules, "fake_backend", mod)
-    monkeypatch.setitem(sh.BACKENDS, "fast", ("fake_backend", "Broken"))
+    monkeypatch.setitem(sh.SHADER_CLASSES, "fast", ("fake_backend", "Broken"))
     with pytest.raises(GelsimError, match="render backend 'fast': Broken does not implement delta"):
         Renderer(prof, "fast")
 

@@ -17,7 +17,7 @@ def test_run_bench_levels(tiny_result):
     assert list(levels) == ["fast", "balanced"]
     for lv in levels.values():
         assert KEYS <= set(lv)
-        assert set(lv["stages_ms"]) == set(bench.STAGES)
+        assert set(lv["stages_ms"]) == set(bench.TIMED_STAGES)
         assert lv["ms_per_frame"] == pytest.approx(sum(lv["stages_ms"].values()), abs=0.05)
         assert lv["stages_ms"]["encode"] > 0 and lv["stages_ms"]["physics"] > 0 and lv["stages_ms"]["optics"] > 0
     ref = levels["balanced"]
