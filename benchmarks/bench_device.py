@@ -62,7 +62,7 @@ def _sync(device):
 def _prepared(resolution: tuple[int, int], fidelity: str, distinct: int, frames: int):
     """(profile, fidelity, ``distinct`` sequences prepared on the CPU, their CPU seconds): catalog fabrics of several
     families, press, slip and twist in turn (kept: a retry at a smaller batch reuses them)."""
-    from gelsim.device.cases import family_sample
+    from gelsim.gel.parity_cases import family_sample
     from gelsim.device.frame import prepare_sequence
     from gelsim.fabrics import load_catalog
     from gelsim.fidelity import get_fidelity
@@ -88,7 +88,8 @@ def _prepared(resolution: tuple[int, int], fidelity: str, distinct: int, frames:
 def frame_rows(device, resolution: tuple[int, int], fidelity: str, batch: int, distinct: int, frames: int,
                reps: int, numpy_frames: int) -> list[dict]:
     """The imprint and whole-frame rows at one resolution (see the module docstring)."""
-    from gelsim.device.frame import DeviceRenderer, render_sequences
+    from gelsim.device.frame import render_sequences
+    from gelsim.optics.torch_backend import BatchRenderer
     from gelsim.gel import press
     from gelsim.optics import Renderer
 
@@ -118,7 +119,7 @@ def frame_rows(device, resolution: tuple[int, int], fidelity: str, batch: int, d
             np_s += time.thread_time() - t
             np_n += 1
     seqs = [prepared[k % distinct] for k in range(batch)]
-    renderer = DeviceRenderer(Renderer(profile, "torch", seed=0, device=str(device)))
+    renderer = BatchRenderer(Renderer(profile, "torch", seed=0, device=str(device)))
     render_sequences(seqs[:min(batch, 4)], profile, fid, renderer)          # warm-up: kernels, FFT plans, caches
     _sync(device)
     rows = []

@@ -3,7 +3,7 @@
 # minutes. Every step is bounded by `timeout`; the whole run ends within DEADLINE seconds (default 420):
 #   1. the machine (GPU, CPU, versions);
 #   2. the CUDA tests: the device imprint, markers and whole frame against the numpy path on this machine
-#      (tests/gelsim/test_device_*.py -k cuda), and the torch optics' CUDA tests;
+#      (the torch kernels' tests -k cuda), and the torch optics' CUDA tests;
 #   3. benchmarks/bench_device.py: imprint and whole-frame frames/s at 320x240 and 960x720 (sequences in step on
 #      the GPU; physics and patches prepared on the CPU, their CPU cost per frame reported beside);
 #   4. benchmarks/bench_device.py --sensors: batched MuJoCo sensor renders/s at N = 1, 16, 256, 1024, 4096, 320x240;
@@ -57,7 +57,7 @@ echo "== machine ($((SECONDS - START)) s)"
   $PY -c "import sys, numpy, scipy, cv2, numba, torch, mujoco, av; print('python', sys.version.split()[0], 'numpy', numpy.__version__, 'scipy', scipy.__version__, 'opencv', cv2.__version__, 'numba', numba.__version__, 'torch', torch.__version__, 'cuda', torch.cuda.is_available(), 'mujoco', mujoco.__version__, 'av', av.__version__)"
 } >"$OUT/machine.txt" 2>&1
 cat "$OUT/machine.txt"
-$PY -c "import gelsim, gelsim.device.imprint, gelsim.mujoco" || { echo "imports failed"; exit 3; }
+$PY -c "import gelsim, gelsim.gel.twoscale_torch, gelsim.mujoco" || { echo "imports failed"; exit 3; }
 
 if [ "$SMALL" = 1 ]; then
   RESOLUTIONS="160x120"; BATCH=4; DISTINCT=2; FRAMES=5; SENSORS="1,4"; SEQ=2; REPS=1
@@ -67,9 +67,9 @@ fi
 
 echo "== tests on $DEV ($((SECONDS - START)) s)"
 if [ "$DEV" = cuda ]; then
-  SEL="cuda"; FILES="tests/gelsim/test_device_imprint.py tests/gelsim/test_device_markers.py tests/gelsim/test_device_frame.py tests/gelsim/test_device_sensor.py tests/gelsim/test_torch_backend.py tests/gelsim/test_dataset_device.py"
+  SEL="cuda"; FILES="tests/gelsim/test_twoscale_torch.py tests/gelsim/test_markers_torch.py tests/gelsim/test_scene_torch.py tests/gelsim/test_device_frame.py tests/gelsim/test_mujoco_batch.py tests/gelsim/test_torch_backend.py tests/gelsim/test_dataset_device.py"
 else
-  SEL="cpu and not slow"; FILES="tests/gelsim/test_device_markers.py tests/gelsim/test_device_frame.py"
+  SEL="cpu and not slow"; FILES="tests/gelsim/test_markers_torch.py tests/gelsim/test_device_frame.py"
 fi
 T=$(budget 100 320)
 timeout -s INT "$T" $PY -m pytest -q -p no:cacheprovider $FILES -k "$SEL" >"$OUT/cuda_tests.txt" 2>&1

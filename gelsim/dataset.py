@@ -449,10 +449,6 @@ def _renderer(profile):
                  device=config.device if backend == "torch" else None)
     if backend != "torch":
         return r
-    if config.stages == "all":
-        from .device.frame import DeviceRenderer
-
-        return DeviceRenderer(r)
     from .optics.torch_backend import BatchRenderer
 
     return BatchRenderer(r)
@@ -649,7 +645,7 @@ def _render_section(config: GenerateConfig, records: dict[str, dict]) -> dict:
         import torch
 
         out["torch"] = torch.__version__
-    out["labels"] = ("device: gelsim.device, within gelsim.device.imprint.TOLERANCE of the numpy path"
+    out["labels"] = ("device: the torch engine, within gelsim.gel.twoscale_torch.TOLERANCE of the numpy path"
                      if backend == "torch" and config.stages == "all" else "numpy: the bit-exact reference")
     return out
 

@@ -37,7 +37,6 @@ import math
 from dataclasses import dataclass, field
 from typing import Collection, Iterator, Mapping
 
-import cv2
 import numpy as np
 
 from .contact import ContactFrames, Surface, simulate
@@ -45,6 +44,7 @@ from .errors import GelsimError
 from .fidelity import Fidelity
 from .gel import Imprint
 from .gel.twoscale import crown_envelope, texture_scale_mm
+from .labels import contact_location
 from .markers import Markers
 from .motion import Motion
 from .optics import Renderer
@@ -104,24 +104,6 @@ def negligible_px(shear_mm, twist_deg: float, profile: SensorProfile) -> tuple[b
     h, w = profile.shape
     twist_px = abs(math.radians(float(twist_deg))) * math.hypot(w, h)
     return shear_px < NEGLIGIBLE_PX, twist_px < NEGLIGIBLE_PX
-
-
-def contact_location(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Where a bool (H, W) contact mask lies, in px (x = column, y = row, pixel centres at integers).
-
-    Returns the centroid float (2,) (x, y) and the bounding box float (4,) (x0, y0, x1, y1) of its
-    pixels' edges, so a single pixel at column 5 spans x 4.5-5.5; both NaN when the mask is empty.
-    """
-    m = np.ascontiguousarray(mask).view(np.uint8)
-    # Column and row counts by cv2.reduce: 0.16 ms in all at 960x720, against 1.4 ms for cv2.moments.
-    cols = cv2.reduce(m, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel().astype(np.float64)
-    n = cols.sum()
-    if n == 0:
-        return np.full(2, np.nan), np.full(4, np.nan)
-    rows = cv2.reduce(m, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel().astype(np.float64)
-    x, y, w, h = cv2.boundingRect(m)
-    return (np.array([cols @ np.arange(cols.size) / n, rows @ np.arange(rows.size) / n]),
-            np.array([x - 0.5, y - 0.5, x + w - 0.5, y + h - 0.5]))
 
 
 def crown_envelope_patch(patch: HeightPatch | None, obj: TouchedObject, profile: SensorProfile,

@@ -1,4 +1,4 @@
-"""Fused per-pixel passes of the two-scale imprint: its texture stage (:func:`gelsim.gel.twoscale._texture_depth`),
+"""Fused per-pixel passes of the two-scale imprint: its texture stage (:func:`gelsim.gel.twoscale.texture_depth`),
 and the macro contact's floor under the gel (:func:`macro_floor`), which reads its coarse fields by the same contract.
 
 The texture stage maps the texture ``t`` (full resolution) through fields that live on a coarse

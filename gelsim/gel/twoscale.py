@@ -62,7 +62,7 @@ MIN_CONTACT_CELLS = 24
 REFINE_REACH = 4.0
 # Samples of a window's bearing curve (the depth at a given contact fraction to about 1%).
 BEARING_SAMPLES = 10000
-# The texture statistics see features down to 1/16 of the texture's scale (see _texture_depth).
+# The texture statistics see features down to 1/16 of the texture's scale (see texture_depth).
 STATS_BLUR_PER_TEXTURE = 16.0
 # A texture needs this many pixels per period for its slopes to be read (central differences
 # alias beyond q dx = pi / 2).
@@ -81,7 +81,7 @@ TEXTURE_CAP_THICKNESS = 1.0
 # frames whose contact grows or shrinks, and always one pass by up to 73%.
 SUPPORT_PASSES = 4
 SUPPORT_TOL = 0.02
-# The contact's growth with the force (see _solve_macro) is measured between frames whose forces differ
+# The contact's growth with the force (see solve_macro) is measured between frames whose forces differ
 # by at least this (log ratio, ~10%): over smaller steps the motion changes the contact more.
 EXPONENT_MIN_STEP = 0.1
 # The exponent taken before one is measured (a sequence's second frame): the captured sequences' second
@@ -101,7 +101,7 @@ class MacroState:
     ``origin + (i, j) * block`` to ``+ block``; ``work_shape`` the work grid's (ny, nx);
     ``bottomed``: the pad was at its travel (the next frame tries that first); ``force_n`` the force it
     carried, N, and ``contact_exponent`` d ln(contact cells) / d ln(force) measured from its own warm
-    start (None: not known), which predict the next frame's contact (see _solve_macro)."""
+    start (None: not known), which predict the next frame's contact (see solve_macro)."""
     key: tuple
     pressure_mpa: np.ndarray
     origin: tuple[int, int] = (0, 0)
@@ -240,7 +240,7 @@ class TextureDepth:
                             self.touch, mask)
 
 
-def _texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float, gel,
+def texture_depth(surface: np.ndarray, env: np.ndarray, pressure_at, dx: float, gel,
                    support: FabricSupport | None, texture_mm: float, cloth_mpa_per_mm: float):
     """The texture's part of the gel surface for the texture ``t = surface - env`` (the object's
     surface less its crown envelope, mm, float32 (ny, nx); t <= 0 is the depth below the crowns)
@@ -399,7 +399,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     for _ in range(2):
         box = bbox(work > np.float32(pmax - reach))
         f = macro_cell_px(box, macro_cells, dx, valley_mm, cells_per_valley)
-        sol = _solve_macro(work, box, dx, gel, tex if has_texture else None, support, force_n, depth_mm,
+        sol = solve_macro(work, box, dx, gel, tex if has_texture else None, support, force_n, depth_mm,
                            f, warm, sag, own)
         cb = bbox(sol.p > 0)
         if cb is None or max(cb[1] - cb[0], cb[3] - cb[2]) >= MIN_CONTACT_CELLS or sol.f == 1:
@@ -493,7 +493,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
         def pressure_at(cs, shape):
             return _cell_pressure(p, f, (r0, c0), (w0, w0 + shape[0], v0, v0 + shape[1]), cs, (ny, nx))
 
-        texture = _texture_depth(work[w0:w1, v0:v1], env, pressure_at, dx, gel, support, tex, cloth)
+        texture = texture_depth(work[w0:w1, v0:v1], env, pressure_at, dx, gel, support, tex, cloth)
         texture.add_to(dwin, in_macro, mask[w0:w1, v0:v1])
         # The approach is the crowns': the macro one plus their sink below the mean surface there.
         if in_macro.any():
@@ -507,7 +507,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
 
 
 @dataclass(frozen=True)
-class _Macro:
+class MacroSolution:
     r0: int
     r1: int
     c0: int
@@ -539,8 +539,8 @@ def macro_cell_px(box: tuple[int, int, int, int], macro_cells: int, dx: float, v
     return f
 
 
-def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, f, warm, sag=None,
-                 own=None) -> _Macro:
+def solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, f, warm, sag=None,
+                 own=None) -> MacroSolution:
     """The coarse contact problem over ``box`` = (r0, r1, c0, c1) of ``work`` on cells of ``f`` x ``f`` px
     (:func:`macro_cell_px`; ``sag``, ``own``: see press_twoscale)."""
     r0, r1, c0, c1 = box
@@ -574,7 +574,7 @@ def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, f, warm, s
     elif warm is not None and warm.work_shape == work.shape:
         # The previous frame's pressure on this frame's grid (its cell centres, bilinear): the
         # region moves by a pixel or two between frames and the patch barely changes.
-        p = _resample_pressure(warm, (r0, c0), f, cshape)
+        p = resample_pressure(warm, (r0, c0), f, cshape)
         warmed = bool(np.any(p > 0))
     if not warmed:
         p = np.sqrt(np.maximum(hc + max(0.05 * vmax, 1e-4), 0.0))
@@ -600,10 +600,10 @@ def _solve_macro(work, box, dx, gel, tex, support, force_n, depth_mm, f, warm, s
             exponent = min(max(math.log(n / n_warm) / step, 0.0), 1.0)
         else:  # (a small step's change is the motion's more than the force's)
             exponent = warm.contact_exponent
-    return _Macro(r0, r1, c0, c1, f, cm, env_c, emax, p, float(delta), bool(bottomed), key, cshape, area, exponent)
+    return MacroSolution(r0, r1, c0, c1, f, cm, env_c, emax, p, float(delta), bool(bottomed), key, cshape, area, exponent)
 
 
-def _solve_at(op: Operator, hc: np.ndarray, area: float, delta: float, p: np.ndarray, tol: float = MACRO_TOL,
+def solve_at(op: Operator, hc: np.ndarray, area: float, delta: float, p: np.ndarray, tol: float = MACRO_TOL,
               maxit: int = MACRO_MAXIT) -> np.ndarray:
     """The macro contact at the approach ``delta`` (mm), warm-started from ``p`` (MPa, e.g. a solution
     at a larger approach, or the previous frame's): its pressure, MPa.
@@ -676,7 +676,7 @@ def _window_max(a, starts, f: int):
     return out
 
 
-def _resample_pressure(warm: MacroState, origin: tuple[int, int], f: int, cshape: tuple[int, int]) -> np.ndarray:
+def resample_pressure(warm: MacroState, origin: tuple[int, int], f: int, cshape: tuple[int, int]) -> np.ndarray:
     """``warm``'s pressure (MPa) at the centres of a grid of ``cshape`` blocks of ``f`` work pixels
     starting at ``origin``, float64."""
     ys = origin[0] + (np.arange(cshape[0]) + 0.5) * f - 0.5
@@ -690,7 +690,7 @@ def _resample_pressure(warm: MacroState, origin: tuple[int, int], f: int, cshape
                      borderMode=cv2.BORDER_CONSTANT, borderValue=0.0).astype(np.float64)
 
 
-def hc_of(sol: "_Macro") -> np.ndarray:
+def hc_of(sol: "MacroSolution") -> np.ndarray:
     """The macro grid's object surface relative to its top (mm, <= 0)."""
     return sol.env_c - sol.emax
 
@@ -860,19 +860,19 @@ def solve_on_cloth(h: np.ndarray, d: float, gel, support: FabricSupport | None, 
         if at_travel:
             # The force grows with the approach, so the pass is bottomed exactly when the force at the
             # travel falls short of the request.
-            p = _solve_at(op, h, area, vmax, p, tol, maxit)
+            p = solve_at(op, h, area, vmax, p, tol, maxit)
             bottomed = float(p.sum()) * area < force_n
             delta = vmax
         if force_n is not None and not bottomed:
             p, delta, _ = pk_solve(op, h, area, force=force_n, p0=p, tol=tol, maxit=maxit)
             bottomed = delta > vmax
             if bottomed:
-                p = _solve_at(op, h, area, vmax, p, tol, maxit)
+                p = solve_at(op, h, area, vmax, p, tol, maxit)
                 delta = vmax
         if force_n is None:
             bottomed = depth_mm > vmax
             delta = vmax if bottomed else float(depth_mm)
-            p = _solve_at(op, h, area, delta, p, tol, maxit)
+            p = solve_at(op, h, area, delta, p, tol, maxit)
         at_travel = bottomed
         if support is None or not math.isfinite(ks):
             break

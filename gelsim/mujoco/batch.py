@@ -3,16 +3,16 @@ pads of one scene) at once on any torch device.
 
 Per call, for every pad, the host does what :class:`gelsim.mujoco.GelSightSensor` does with MuJoCo (its contact
 forces, the ray casts of what lies in front of the pad, the protrusion map, the stick/slip state), then the device
-does the rest for all pads together: the imprint (:func:`gelsim.device.imprint.press_batch`, each pad
-warm-started from its own previous frame), the markers (:func:`gelsim.device.markers.displace_batch`) and the
+does the rest for all pads together: the imprint (:func:`gelsim.gel.twoscale_torch.press_batch`, each pad
+warm-started from its own previous frame), the markers (:func:`gelsim.markers_torch.displace_batch`) and the
 camera image (the torch optics, :class:`gelsim.device.frame.DeviceRenderer`). A pad without a contact force gets
 the flat gel (with noise, when on), as the single sensor does.
 
 The pads of one batch are one sensor unit: one profile, resolution, fidelity and ``seed`` (the background's
 illumination, the markers' print and the noise stream's seed, as :class:`GelSightSensor`'s ``seed``). Its frames
 equal N single sensors' (``GelSightSensor(..., seed=seed)``, one per pad, rendered in the same order) within the
-device path's tolerances: the imprint's (:data:`gelsim.device.imprint.TOLERANCE`), the markers'
-(:data:`gelsim.device.markers.TOL_PX`) and the torch optics' (``TOL_MAX_UINT8_DN`` per pixel), tested in
+device path's tolerances: the imprint's (:data:`gelsim.gel.twoscale_torch.TOLERANCE`), the markers'
+(:data:`gelsim.markers_torch.TOL_PX`) and the torch optics' (``TOL_MAX_UINT8_DN`` per pixel), tested in
 ``tests/gelsim/test_device_sensor.py``.
 
 Pads that share a model (N copies of one scene, each with its own ``MjData``) share one single sensor's host
@@ -85,9 +85,8 @@ class BatchGelSightSensor:
 
     def __init__(self, pads, *, profile="vitac", fidelity: str | Fidelity = "fast",
                  resolution: tuple[int, int] | None = None, seed: int = 0, noise: bool = True, device=None):
-        from ..device.frame import DeviceRenderer
         from ..optics import Renderer
-        from ..optics.torch_backend import resolve_device
+        from ..optics.torch_backend import BatchRenderer, resolve_device
 
         pads = list(pads)
         if not pads:
@@ -113,7 +112,7 @@ class BatchGelSightSensor:
         if any(h.profile != self.profile for h, _, _ in self._pads):
             raise GelsimError("the pads of one batch share one profile and resolution; make one batch per sensor kind")
         _check_torch_optics(self.profile)
-        self.renderer = DeviceRenderer(Renderer(self.profile, "torch", supersample=fid.supersample, seed=self.seed,
+        self.renderer = BatchRenderer(Renderer(self.profile, "torch", supersample=fid.supersample, seed=self.seed,
                                                 device=self.device))
         self._rest = first.rest_px
         self.timings_ms: dict[str, float] = {}
@@ -178,8 +177,8 @@ class BatchGelSightSensor:
         """Every pad's tactile frame of its scene's current state."""
         import torch
 
-        from ..device.imprint import press_batch
-        from ..device.markers import displace_batch
+        from ..gel.twoscale_torch import press_batch
+        from ..markers_torch import displace_batch
 
         clock = time.perf_counter
         t0 = t = clock()

@@ -16,8 +16,8 @@ torch = pytest.importorskip("torch")
 from gelsim import dataset  # noqa: E402
 from gelsim.cli import main  # noqa: E402
 from gelsim.dataset import load_manifest  # noqa: E402
-from gelsim.device.imprint import TOLERANCE  # noqa: E402
-from gelsim.device.markers import TOL_PX  # noqa: E402
+from gelsim.gel.twoscale_torch import TOLERANCE  # noqa: E402
+from gelsim.markers_torch import TOL_PX  # noqa: E402
 from gelsim.schema import record_path  # noqa: E402
 
 # 2 fabrics x 2 sequences: two groups in step, so that two workers share them out

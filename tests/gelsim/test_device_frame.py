@@ -8,24 +8,21 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from gelsim.device.frame import (DeviceRenderer, PatchBank, contact_labels, prepare_sequence,  # noqa: E402
-                                 render_sequences, sample_patches)
-from gelsim.device.imprint import TOLERANCE  # noqa: E402
-from gelsim.device.markers import TOL_PX  # noqa: E402
+from gelsim.device.frame import prepare_sequence, render_sequences  # noqa: E402
+from gelsim.gel.twoscale_torch import TOLERANCE  # noqa: E402
+from gelsim.markers_torch import TOL_PX  # noqa: E402
 from gelsim.fabrics import load_catalog  # noqa: E402
 from gelsim.fidelity import get_fidelity  # noqa: E402
 from gelsim.motion import sample_motion  # noqa: E402
 from gelsim.optics import Renderer  # noqa: E402
 from gelsim.optics.torch_backend import TOL_MAX_UINT8_DN, BatchRenderer  # noqa: E402
-from gelsim.sequence import SequenceOptions, contact_location, render_sequence  # noqa: E402
+from gelsim.sequence import SequenceOptions, render_sequence  # noqa: E402
 from gelsim.sinks import DeviceFrames, KeepFrames, drain  # noqa: E402
 from gelsim.stream import noise_generator  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
 DEVICES = ["cpu", pytest.param("cuda", marks=CUDA)]
-# sampled heights within this of HeightPatch.sample's (OpenCV's warp rounds its coordinates its own way), mm
-SAMPLE_TOL_MM = 1e-4
 
 
 @pytest.fixture(scope="module")
@@ -42,34 +39,6 @@ def setup():
 
 
 @pytest.mark.parametrize("device", DEVICES)
-def test_patch_sampling_matches_heightpatch(setup, device):
-    prof, _, _, prep = setup
-    bank = PatchBank.from_patches([p.patch for p in prep], device)
-    which, poses, refs = [], [], []
-    for k, p in enumerate(prep):
-        c = p.contact
-        for i in range(c.position_mm.shape[0]):
-            pose = (float(c.position_mm[i, 0]), float(c.position_mm[i, 1]), float(c.yaw_deg[i]),
-                    tuple(float(v) for v in c.tilt_deg[i]))
-            which.append(k)
-            poses.append(pose)
-            refs.append(p.patch.sample(prof.shape, prof.image.mm_per_px, *pose))
-    got = sample_patches(bank, which, poses, prof.shape, prof.image.mm_per_px).cpu().numpy()
-    assert np.abs(got - np.stack(refs)).max() < SAMPLE_TOL_MM
-
-
-def test_contact_labels_match_contact_location():
-    rng = np.random.default_rng(0)
-    masks = rng.random((3, 20, 30)) > 0.7
-    masks[1] = False
-    cen, bb = contact_labels(torch.as_tensor(masks))
-    for m, c, b in zip(masks, cen, bb):
-        c2, b2 = contact_location(m)
-        np.testing.assert_allclose(c, c2, rtol=0, atol=1e-12)
-        np.testing.assert_array_equal(b, b2)
-
-
-@pytest.mark.parametrize("device", DEVICES)
 def test_sequences_in_step_equal_render_sequence(setup, device):
     prof, fid, specs, prep = setup
     got: dict = {}
@@ -78,7 +47,7 @@ def test_sequences_in_step_equal_render_sequence(setup, device):
         for k, key in enumerate(which):
             got[key] = frames[k]
 
-    out = render_sequences(prep, prof, fid, DeviceRenderer(Renderer(prof, "torch", seed=0, device=device)), sink=sink)
+    out = render_sequences(prep, prof, fid, BatchRenderer(Renderer(prof, "torch", seed=0, device=device)), sink=sink)
     assert out["frames"] == sum(m.num_frames for _, m, _ in specs)
     br = BatchRenderer(Renderer(prof, "torch", seed=0, device="cpu"))
     for i, (obj, motion, seed) in enumerate(specs):
@@ -107,7 +76,7 @@ def test_no_tensor_is_made_off_the_batchs_device(setup):
     tensor made without naming one would be a meta tensor, and the first operation mixing it with the batch's
     (CPU) tensors would fail. (What would break on a GPU; checked here without one.)"""
     prof, fid, specs, prep = setup
-    renderer = DeviceRenderer(Renderer(prof, "torch", seed=0, device="cpu"))
+    renderer = BatchRenderer(Renderer(prof, "torch", seed=0, device="cpu"))
     torch.set_default_device("meta")
     try:
         out = render_sequences(prep, prof, fid, renderer)

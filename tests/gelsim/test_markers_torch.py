@@ -1,4 +1,4 @@
-"""gelsim.device.markers: the markers' displacement in torch equals the numpy path's within TOL_PX (0.01 px), given
+"""gelsim.markers_torch: the markers' displacement in torch equals the numpy path's within TOL_PX (0.01 px), given
 the same imprints: both marker models (elastic, gaussian), with shear and twist, per-frame rest grids, frames
 without contact at rest."""
 from __future__ import annotations
@@ -8,8 +8,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from gelsim.device.cases import capture, numpy_reference  # noqa: E402
-from gelsim.device.markers import TOL_PX, displace_batch  # noqa: E402
+from gelsim.gel.parity_cases import capture, numpy_reference  # noqa: E402
+from gelsim.markers_torch import TOL_PX, displace_batch  # noqa: E402
 from gelsim.errors import GelsimError  # noqa: E402
 from gelsim.markers import displace, marker_grid  # noqa: E402
 
@@ -62,3 +62,24 @@ def test_bad_input_is_one_line(vitac320):
     with pytest.raises(GelsimError, match="finite"):
         displace_batch(vitac320, "fast", torch.zeros((1, h, w)), torch.zeros((1, h, w), dtype=torch.bool),
                        twist_deg=[float("nan")])
+
+
+#: The kernels' own agreement given the same imprint, px (measured at most 3e-5 px: float rounding), far inside the
+#: stated TOL_PX; a shear nudged by 1 um (about 0.02 px at 320x240) falls outside it.
+KERNEL_PX = 1e-4
+
+
+def test_the_kernels_agree_to_rounding_and_the_tolerance_sees_a_nudge(imprints):
+    worst, nudged = 0.0, np.inf
+    for c, ref in imprints:
+        prof, fid = c.profile, c.fidelity
+        depth = torch.as_tensor(np.stack([r.depth_mm for r in ref]))
+        mask = torch.as_tensor(np.stack([r.contact_mask for r in ref]))
+        xy, _ = displace_batch(prof, fid, depth, mask, shear_mm=c.shear_mm, twist_deg=c.twist_deg)
+        for t, r in enumerate(ref):
+            kw = dict(twist_deg=float(c.twist_deg[t]))
+            mk = displace(prof, fid, r, shear_mm=tuple(c.shear_mm[t]), **kw)
+            off = displace(prof, fid, r, shear_mm=(float(c.shear_mm[t][0]) + 1e-3, float(c.shear_mm[t][1])), **kw)
+            worst = max(worst, float(np.abs(xy[t].numpy() - mk.xy_px).max()))
+            nudged = min(nudged, float(np.abs(xy[t].numpy() - off.xy_px).max()))
+    assert worst <= KERNEL_PX < nudged, (worst, nudged)

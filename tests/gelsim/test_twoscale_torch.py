@@ -1,9 +1,9 @@
-"""gelsim.device.imprint: the two-scale imprint in torch agrees with the numpy path within its stated tolerance.
+"""gelsim.gel.twoscale_torch: the two-scale imprint in torch agrees with the numpy path within its stated tolerance.
 
-Tolerance (gelsim.device.imprint.TOLERANCE, justified in docs/device.md): every frame's contact mask the same on
+Tolerance (gelsim.gel.twoscale_torch.TOLERANCE, justified in docs/device.md): every frame's contact mask the same on
 99.8% of the pixels, the contact area within 2%, its centroid within 0.5 px, the indentation within 1e-3 mm; and at
 least 98% of the frames within the issue's figures (TYPICAL: 99.9%, 0.2%, 0.05 px, 1e-4 mm). Cases: catalog fabrics of several families pressed, slipped and twisted at
-320x240 (gelsim.device.cases), the sequences in step (frame t of every case in one batch, each warm-started from
+320x240 (gelsim.gel.parity_cases), the sequences in step (frame t of every case in one batch, each warm-started from
 its own previous frame), on the CPU build of torch and, where there is one, on a CUDA device. The whole catalog
 sample (a fabric of every family, both levels) is the slow test.
 """
@@ -14,8 +14,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from gelsim.device.cases import ACTIONS, agreement, capture, device_imprints, family_sample, numpy_reference, within  # noqa: E402
-from gelsim.device.imprint import TOLERANCE, TYPICAL, TYPICAL_SHARE, press_batch  # noqa: E402
+from gelsim.gel.parity_cases import ACTIONS, agreement, capture, device_imprints, family_sample, numpy_reference, within  # noqa: E402
+from gelsim.gel.twoscale_torch import TOLERANCE, TYPICAL, TYPICAL_SHARE, press_batch  # noqa: E402
 from gelsim.errors import GelsimError  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")

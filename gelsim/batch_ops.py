@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..optics.ops import pad_hw, torch_module  # noqa: F401 (torch_module: the device modules' way to torch)
-from ..optics.ops.box import extent_torch
+from .optics.ops import pad_hw, torch_module  # noqa: F401 (torch_module: the torch kernels' way to torch)
+from .optics.ops.box import extent_torch
 
 
 def as_index(values, device):

@@ -10,8 +10,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from gelsim.device.imprint import TOLERANCE  # noqa: E402
-from gelsim.device.markers import TOL_PX  # noqa: E402
+from gelsim.gel.twoscale_torch import TOLERANCE  # noqa: E402
+from gelsim.markers_torch import TOL_PX  # noqa: E402
 from gelsim.errors import GelsimError  # noqa: E402
 from gelsim.mujoco import GelSightSensor  # noqa: E402
 from gelsim.mujoco.batch import BatchGelSightSensor, ball_scenes  # noqa: E402

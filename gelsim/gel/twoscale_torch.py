@@ -18,14 +18,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import batch_ops as ops
 from ..errors import GelsimError
-from ..gel import Imprint, gel_sag_mm, work_shape
-from ..gel import twoscale as ts
-from ..gel.util import MIN_BLUR_PX
 from ..optics.ops.resample import area_mean_torch
-from . import ops
-from .macro import DeviceMacroState, MacroResult, gel_operator, plan_grid, solve_macro
-from .texture import TextureScale, texture_depth
+from . import Imprint, gel_sag_mm, work_shape
+from . import twoscale as ts
+from .layer_torch import gel_operator
+from .util import MIN_BLUR_PX
+from .macro_torch import DeviceMacroState, MacroResult, plan_grid, solve_macro
+from .texture_torch import TextureScale, texture_depth
 
 #: Stated agreement of the device imprint with the numpy path, for every frame (tested on the CPU build of torch and
 #: on CUDA; the measurements behind it in docs/device.md): the contact mask the same on at least ``mask_agreement``
@@ -49,7 +50,7 @@ TYPICAL_SHARE = 0.98
 class ImprintBatch:
     """``B`` imprints on the device: ``depth_mm`` float32 ``(B, H, W)`` mm, ``contact_mask`` bool ``(B, H, W)``;
     per frame (numpy ``(B,)``) the approach ``indentation_mm``, ``normal_force_n``, ``contact_area_mm2`` and
-    ``bottomed``; ``states``: each frame's :class:`~gelsim.device.macro.DeviceMacroState` (the next frame's
+    ``bottomed``; ``states``: each frame's :class:`~gelsim.gel.macro_torch.DeviceMacroState` (the next frame's
     ``warm``), None where nothing pressed."""
     depth_mm: object
     contact_mask: object

@@ -99,7 +99,7 @@ def capture(fabric_id: int, action: str, profile: SensorProfile, fidelity: str |
 
 def numpy_reference(case: SequenceCase) -> list:
     """The numpy path's :class:`gelsim.gel.Imprint` of every frame of ``case``, warm-started as a sequence is."""
-    from ..gel import press
+    from . import press
 
     out, prev = [], None
     for t in range(len(case)):
@@ -112,12 +112,12 @@ def numpy_reference(case: SequenceCase) -> list:
 
 
 def device_imprints(cases: list[SequenceCase], device="cpu") -> list[list]:
-    """Every case's frames pressed by :func:`gelsim.device.imprint.press_batch`, frame t of every case in one
+    """Every case's frames pressed by :func:`gelsim.gel.twoscale_torch.press_batch`, frame t of every case in one
     batch (the cases' sequences in step, each warm-started from its own previous frame): per case the list of
-    its :class:`~gelsim.device.imprint.ImprintBatch` rows as (batch, row) pairs."""
+    its :class:`~gelsim.gel.twoscale_torch.ImprintBatch` rows as (batch, row) pairs."""
     import torch
 
-    from .imprint import press_batch
+    from .twoscale_torch import press_batch
 
     if not cases:
         return []
@@ -149,7 +149,7 @@ def agreement(reference, device) -> dict[str, np.ndarray]:
     (against the numpy path's; 0 where both are 0), ``centroid_px`` the contact centroids' largest coordinate
     difference (0 where neither has contact, inf where one has), ``indentation_mm`` and ``depth_mm`` (the depth
     maps' largest difference). float64 arrays, one value per frame."""
-    from ..sequence import contact_location
+    from ..labels import contact_location
 
     out: dict[str, list] = {"mask": [], "area_rel": [], "centroid_px": [], "indentation_mm": [], "depth_mm": []}
     for r, d in zip(reference, device, strict=True):
@@ -167,7 +167,7 @@ def agreement(reference, device) -> dict[str, np.ndarray]:
 
 def within(metrics: dict[str, np.ndarray], tolerance: dict[str, float]) -> np.ndarray:
     """bool per frame: every metric of :func:`agreement` within ``tolerance`` (keys as
-    :data:`gelsim.device.imprint.TOLERANCE`: ``mask_agreement`` a lower bound, the rest upper bounds)."""
+    :data:`gelsim.gel.twoscale_torch.TOLERANCE`: ``mask_agreement`` a lower bound, the rest upper bounds)."""
     ok = metrics["mask"] >= tolerance["mask_agreement"]
     for k in ("area_rel", "centroid_px", "indentation_mm", "depth_mm"):
         if k in tolerance:

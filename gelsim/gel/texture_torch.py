@@ -1,11 +1,11 @@
-"""The two-scale imprint's texture stage (:func:`gelsim.gel.twoscale._texture_depth` and the passes of
+"""The two-scale imprint's texture stage (:func:`gelsim.gel.twoscale.texture_depth` and the passes of
 :mod:`gelsim.gel.texture_kernels`) for a batch of frames in torch.
 
 The frames of one call share the texture's scale (one fabric's, or fabrics of the same scale) and so the
 statistics grid's cell ``fs``, the band's blur and the smoothing's width; each has its own contact window
 (its own size, its cells tiling it from its corner), its own local pressure and its own support. Every frame's
 window sits in the top-left corner of the batch's arrays and is continued beyond its padded size by replicating
-its edge, which is what every filter of the numpy path reads past that edge (:mod:`gelsim.device.ops`); the
+its edge, which is what every filter of the numpy path reads past that edge (:mod:`gelsim.batch_ops`); the
 slopes' mirrored edge and the cell sums are taken at each frame's own edge.
 """
 from __future__ import annotations
@@ -15,12 +15,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..gel import texture_kernels as tk
-from ..gel import twoscale as ts
-from ..gel.johnson import segment_arrays
-from ..gel.layer import effective_modulus_mpa
+from .. import batch_ops as ops
 from ..optics.ops.resample import area_mean_torch
-from . import ops
+from . import texture_kernels as tk
+from . import twoscale as ts
+from .johnson import segment_arrays
+from .layer import effective_modulus_mpa
 
 CONTACT, KEPT, LAM = tk.CONTACT, tk.KEPT, tk.LAM
 
@@ -28,7 +28,7 @@ CONTACT, KEPT, LAM = tk.CONTACT, tk.KEPT, tk.LAM
 @dataclass(frozen=True)
 class TextureScale:
     """What the frames of one texture call share: the texture's scale ``tex`` (mm) at ``dx`` mm per pixel, and
-    what follows from it (see :func:`gelsim.gel.twoscale._texture_depth`)."""
+    what follows from it (see :func:`gelsim.gel.twoscale.texture_depth`)."""
     tex: float
     dx: float
 
@@ -140,12 +140,12 @@ class TextureBatch:
 
 
 def texture_depth(surface, env, ny, nx, pressure_cells, scale: TextureScale, gel, supports, cloth_mpa_per_mm):
-    """:func:`gelsim.gel.twoscale._texture_depth` for a batch of windows.
+    """:func:`gelsim.gel.twoscale.texture_depth` for a batch of windows.
 
     surface, env: float32 ``(B, NY, NX)`` each frame's window of the object (less the dome) and of its crown
-    envelope at the top-left, continued by replication (:func:`gelsim.device.ops.crop`); ny, nx: int64 ``(B,)``
+    envelope at the top-left, continued by replication (:func:`gelsim.batch_ops.crop`); ny, nx: int64 ``(B,)``
     the windows' sizes; ``pressure_cells(rows, cols, NYb, NXb)``: the local mean pressure averaged over each
-    frame's cells (MPa, float32 ``(B, R, C)``, see :func:`gelsim.device.imprint`); supports: per frame;
+    frame's cells (MPa, float32 ``(B, R, C)``, see :func:`gelsim.gel.twoscale_torch`); supports: per frame;
     cloth_mpa_per_mm: float (B,), the cloth's secant stiffness (inf: rigid)."""
     torch = ops.torch_module()
     dev = surface.device

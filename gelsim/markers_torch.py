@@ -8,7 +8,7 @@ on one common grid, so every frame's convolution is the numpy path's, up to roun
 blur reads zeros past each frame's window, as OpenCV's constant border does.
 
 Stated agreement with the numpy path: marker centres and corners within :data:`TOL_PX` px (tested in
-``tests/gelsim/test_device_markers.py`` on the imprints of the agreement cases, :mod:`gelsim.device.cases`).
+``tests/gelsim/test_device_markers.py`` on the imprints of the agreement cases, :mod:`gelsim.gel.parity_cases`).
 """
 from __future__ import annotations
 
@@ -17,10 +17,10 @@ import math
 
 import numpy as np
 
-from ..errors import GelsimError
-from ..markers import CELLS_PER_THICKNESS, square_corners, screen_multiplier, field_window
-from ..optics.ops.resample import area_mean_torch
-from . import ops
+from . import batch_ops as ops
+from .errors import GelsimError
+from .markers import CELLS_PER_THICKNESS, field_window, screen_multiplier, square_corners
+from .optics.ops.resample import area_mean_torch
 
 #: Marker positions (centres and corners) of the device path within this of the numpy path's, px, given the same
 #: imprint (the issue's figure; measured at most 1e-5 px, float rounding).
@@ -80,13 +80,13 @@ def displace_batch(profile, fidelity, depth_mm, contact_mask, *, shear_mm=None, 
     """Markers moved by the gel for ``B`` imprints on the device (:func:`gelsim.markers.displace`).
 
     depth_mm: float32 ``(B, H, W)`` mm and contact_mask bool ``(B, H, W)`` (an
-    :class:`~gelsim.device.imprint.ImprintBatch`'s); shear_mm: float ``(B, 2)`` (x, y) mm; twist_deg: float ``(B,)`` degrees; rest: float ``(N, 2)`` or ``(B, N, 2)``
+    :class:`~gelsim.gel.twoscale_torch.ImprintBatch`'s); shear_mm: float ``(B, 2)`` (x, y) mm; twist_deg: float ``(B,)`` degrees; rest: float ``(N, 2)`` or ``(B, N, 2)``
     px rest centres (default :func:`gelsim.markers.marker_grid` with ``seed``).
     Returns (centres float32 ``(B, N, 2)``, corners float32 ``(B, N, 4, 2)``) px, tensors on the imprints' device.
     """
     torch = ops.torch_module()
-    from ..fidelity import get_fidelity
-    from ..markers import marker_grid
+    from .fidelity import get_fidelity
+    from .markers import marker_grid
 
     fid = get_fidelity(fidelity)
     dev = depth_mm.device
@@ -157,7 +157,7 @@ def _displace_live(profile, fid, depth_mm, contact_mask, box, live, shear, twist
     amp = 3.0 / (2.0 * gel.thickness_mm)
     if fid.marker_model == "elastic":
         pad = int(math.ceil(3 * ell))
-        from .macro import grid_for
+        from .gel.layer_torch import grid_for
 
         m = grid_for((HC, WC))
         kern = _linear_kernels([(x[2], x[3], pad) for x in wins], ell, (HC, WC), m)
@@ -168,7 +168,7 @@ def _displace_live(profile, fid, depth_mm, contact_mask, box, live, shear, twist
         gy, gx = _gradient(phi * (cell_mm * cell_mm), cell_mm, hc_t, wc_t)
         ux, uy = amp * gx, amp * gy
     else:
-        from ..optics.ops.filters import smooth_torch
+        from .optics.ops.filters import smooth_torch
 
         bl = smooth_torch(cells, ell, border="constant")
         gy, gx = _gradient(bl[:, 0].double(), cell_mm, hc_t, wc_t)
