@@ -3,8 +3,9 @@
 Three measurements, each naming the device and its clock:
 
 * ``imprint`` and ``frame`` (per resolution): catalog fabrics pressed, slipped and twisted (the dataset's
-  motions), their physics and patches prepared once on the CPU (:func:`gelsim.device.frame.prepare_sequence`),
-  then ``--batch`` sequences rendered in step on the device (:func:`gelsim.device.frame.render_sequences`: frame t
+  motions), their physics and patches prepared once on the CPU (:class:`gelsim.sequence.SequenceRun`),
+  then ``--batch`` sequences rendered in step on the device (:func:`gelsim.sequence.render_sequences` on the torch
+  engine: frame t
   of every sequence in one batch). Rows: frames/s of the imprint alone (patch sampling, press_batch, labels) and
   of the whole frame (plus markers, optics, the uint8 frames back on the host), wall time with the device
   synchronised at each stage; and the CPU seconds per frame the physics and the patch cost on one core (the part
@@ -62,12 +63,12 @@ def _sync(device):
 def _prepared(resolution: tuple[int, int], fidelity: str, distinct: int, frames: int):
     """(profile, fidelity, ``distinct`` sequences prepared on the CPU, their CPU seconds): catalog fabrics of several
     families, press, slip and twist in turn (kept: a retry at a smaller batch reuses them)."""
-    from gelsim.gel.parity_cases import family_sample
-    from gelsim.device.frame import prepare_sequence
     from gelsim.fabrics import load_catalog
     from gelsim.fidelity import get_fidelity
+    from gelsim.gel.parity_cases import family_sample
     from gelsim.motion import sample_motion
     from gelsim.sensor import load_profile
+    from gelsim.sequence import SequenceRun
 
     w, h = resolution
     profile = load_profile("vitac").with_resolution(w, h)
@@ -79,7 +80,7 @@ def _prepared(resolution: tuple[int, int], fidelity: str, distinct: int, frames:
     for k in range(distinct):
         fab = cat[ids[(7 * k) % len(ids)]]
         m = sample_motion(ACTIONS[k % 3], 1000 + k, frames=(frames, frames), precontact=(1, 1))
-        p = prepare_sequence(fab, m, profile, fid, seed=1000 + k)
+        p = SequenceRun(fab, m, profile, fid, seed=1000 + k)
         cpu_s += sum(p.seconds.values())
         prepared.append(p)
     return profile, fid, prepared, cpu_s
@@ -88,10 +89,11 @@ def _prepared(resolution: tuple[int, int], fidelity: str, distinct: int, frames:
 def frame_rows(device, resolution: tuple[int, int], fidelity: str, batch: int, distinct: int, frames: int,
                reps: int, numpy_frames: int) -> list[dict]:
     """The imprint and whole-frame rows at one resolution (see the module docstring)."""
-    from gelsim.device.frame import render_sequences
-    from gelsim.optics.torch_backend import BatchRenderer
+    from gelsim.engines import TorchEngine
     from gelsim.gel import press
     from gelsim.optics import Renderer
+    from gelsim.optics.torch_backend import BatchRenderer
+    from gelsim.sequence import SequenceOptions, render_sequences
 
     w, h = resolution
     profile, fid, prepared, cpu_s = _prepared(resolution, fidelity, distinct, frames)
@@ -120,22 +122,34 @@ def frame_rows(device, resolution: tuple[int, int], fidelity: str, batch: int, d
             np_n += 1
     seqs = [prepared[k % distinct] for k in range(batch)]
     renderer = BatchRenderer(Renderer(profile, "torch", seed=0, device=str(device)))
-    render_sequences(seqs[:min(batch, 4)], profile, fid, renderer)          # warm-up: kernels, FFT plans, caches
+    engine = TorchEngine(device, sync=True)
+
+    def run(runs, outputs):
+        """The frames of ``runs`` in step: (frames, seconds per stage)."""
+        n, seconds = 0, {}
+        for _, rec in render_sequences(runs, profile, fid, options=SequenceOptions(renderer=renderer, outputs=outputs),
+                                       engine=engine):
+            n += 1
+            for k, v in rec.seconds.items():
+                seconds[k] = seconds.get(k, 0.0) + v
+        return n, seconds
+
+    run([p.again() for p in seqs[:min(batch, 4)]], ("frames", "imprint", "markers"))   # warm-up: kernels, FFT plans
     _sync(device)
     rows = []
     for outputs, what in ((("imprint",), "imprint"), (("frames", "imprint", "markers"), "frame")):
         best = None
         for _ in range(reps):
+            runs = [p.again() for p in seqs]                                   # (their set-up: not timed)
             _sync(device)
             t = time.perf_counter()
-            out = render_sequences(seqs, profile, fid, renderer, outputs=outputs, sync=True)
+            out = run(runs, outputs)
             _sync(device)
             wall = time.perf_counter() - t
             if best is None or wall < best[0]:
                 best = (wall, out)
-        wall, out = best
-        n = out["frames"]
-        stages = {k: round(1e3 * v / n, 3) for k, v in out["seconds"].items() if v > 0}
+        wall, (n, seconds) = best
+        stages = {k: round(1e3 * v / n, 3) for k, v in seconds.items() if v > 0}
         rows.append({"resolution": f"{w}x{h}", "what": what, "device": str(device), "batch": batch,
                      "frames": n, "fps": round(n / wall, 1), "ms_per_frame_by_stage": stages,
                      "clock": "wall, device synchronised per stage"})

@@ -3,8 +3,8 @@
 * ``numpy``: the default CPU path (``--backend fast``): imprint, markers, labels and optics in numpy/OpenCV;
 * ``optics``: ``--backend torch --stages optics``: the same, the camera image rendered by the torch optics on
   ``--device`` (gelsim.sinks.DeviceFrames);
-* ``all``: ``--backend torch --stages all``: the whole frame after the physics on ``--device`` (gelsim.device:
-  a fabric's sequences in step).
+* ``all``: ``--backend torch --stages all``: the whole frame after the physics on ``--device`` (the frame
+  pipeline's torch engine, gelsim.engines.TorchEngine: a fabric's sequences in step).
 
 Each run is a fresh ``python -m gelsim generate`` process writing a small dataset (``--fabrics`` x
 ``--sequences-per-fabric``, the default frame counts) to a temporary directory; the variants alternate within each

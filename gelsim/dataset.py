@@ -59,7 +59,7 @@ class GenerateConfig:
     nuisance: str = "none"       # a level of gelsim/assets/nuisance.toml (docs/nuisance.md); "none": no stage runs
     nuisance_severity: float | None = None   # every stage of the level at this severity (0-4); None: the file's
     # What runs on the torch backend's device: "optics" (the imprint, markers and labels from the numpy path,
-    # byte for byte) or "all" (the whole frame, gelsim.device: labels within its stated tolerance). What, not
+    # byte for byte) or "all" (the whole frame on the torch engine: labels within its stated tolerance). What, not
     # how: a dataset's labels differ between the two, so it is one of options().
     stages: str = "optics"
     # Where and how many frames at a time the torch backend renders: how, not what (the same bytes for
@@ -88,6 +88,80 @@ DEVICE_STAGES = ("optics", "all")
 #: ``--batch`` or ``--workers``: the same bytes however the dataset is run. 16 bounds a worker's memory at 960x720
 #: (16 patches, envelopes and imprint batches: a few GB on the CPU) while filling a GPU with a worker per core.
 MAX_LANES = 16
+
+
+@dataclass(frozen=True)
+class Route:
+    """How a dataset's frames are made, decided once from its options and fidelity level (:meth:`of`, which
+    refuses what cannot run, before anything is written): the render ``backend`` (gelsim.optics.BACKENDS), and
+    where the frame pipeline (:func:`gelsim.stream.make_frames`) runs. ``engine`` ``"numpy"``: each sequence on
+    the numpy engine in a worker (the bit-exact reference), its frames rendered by the backend's
+    :class:`gelsim.optics.Renderer`, or with the torch backend by a :class:`gelsim.sinks.DeviceFrames` sink on
+    ``device``, ``batch`` frames at a time (``--stages optics``); ``"torch"``: the whole frame on the torch engine
+    on ``device``, a group of a fabric's sequences in step (``--stages all``; :func:`device_groups`), its
+    optics ``batch`` frames per call."""
+    backend: str
+    engine: str
+    device: str | None = None
+    batch: int = 0
+
+    @classmethod
+    def of(cls, config: "GenerateConfig", fidelity) -> "Route":
+        """``config``'s route: one line for a backend that does not exist, a device this machine does not have, a
+        device, batch or stages without the torch backend, or the whole frame on the device at a fidelity whose
+        imprint model it does not run."""
+        from .errors import check_choice
+        from .optics import BACKENDS
+
+        backend = config.render_backend(fidelity)
+        check_choice("--backend", backend, BACKENDS)
+        check_choice("--stages", config.stages, DEVICE_STAGES)
+        if backend != "torch":
+            if config.device is not None or config.batch is not None or config.stages != "optics":
+                raise GelsimError(f"--device, --batch and --stages are for --backend torch, not {backend}; add "
+                                  "--backend torch or drop them")
+            return cls(backend, "numpy")
+        if config.stages == "all" and fidelity.imprint_model != "twoscale":
+            raise GelsimError(f"--stages all runs the twoscale imprint on the device (fidelity fast or balanced), not "
+                              f"{fidelity.name}'s {fidelity.imprint_model!r}; choose --fidelity fast or balanced, or "
+                              "--stages optics")
+        if config.batch is not None and (isinstance(config.batch, bool) or not isinstance(config.batch, int)
+                                         or config.batch < 1):
+            raise GelsimError(f"--batch {config.batch!r} is invalid; give a whole number of frames >= 1")
+        from .optics.torch_backend import DEFAULT_BATCH, resolve_device
+
+        resolve_device(config.device)
+        return cls(backend, "torch" if config.stages == "all" else "numpy", config.device,
+                   config.batch or DEFAULT_BATCH)
+
+    @property
+    def stages(self) -> str:
+        """What runs on the torch backend's device, as the manifest records it: ``optics``, ``all`` or ``none``."""
+        return "none" if self.backend != "torch" else ("all" if self.engine == "torch" else "optics")
+
+    @property
+    def in_step(self) -> bool:
+        """A worker's job is a group of sequences in step (the torch engine), not one sequence."""
+        return self.engine == "torch"
+
+    @property
+    def labels_origin(self) -> str:
+        """Where the labels come from, as the manifest records it."""
+        return ("device: the torch engine, within gelsim.gel.twoscale_torch.TOLERANCE of the numpy path"
+                if self.engine == "torch" else "numpy: the bit-exact reference")
+
+    def renderer(self, profile, fidelity, seed: int):
+        """The renderer of ``profile``'s frames: a :class:`gelsim.optics.Renderer` of the backend, or for the torch
+        backend a :class:`gelsim.optics.torch_backend.BatchRenderer` over one on ``device``."""
+        from .optics import Renderer
+
+        r = Renderer(profile, self.backend, supersample=fidelity.supersample, seed=seed,
+                     device=self.device if self.backend == "torch" else None)
+        if self.backend != "torch":
+            return r
+        from .optics.torch_backend import BatchRenderer
+
+        return BatchRenderer(r)
 
 
 # Sensor units a dataset may draw: each needs its own renderer in every worker (0.2-0.3 s and ~60 MB
@@ -415,10 +489,11 @@ def _worker_init(config: GenerateConfig, root: str) -> None:
     if config.resolution is not None:
         profile = profile.with_resolution(*config.resolution)
     fidelity = get_fidelity(config.fidelity)
+    route = Route.of(config, fidelity)
     _WORKER.update(config=config, root=Path(root), catalog=load_catalog(), profile=profile, fidelity=fidelity,
                    ranges=load_motion_ranges(), units=unit_profiles(config, profile), unit_renderers={},
-                   **nuisance_level(config))
-    if config.render_backend(fidelity) == "torch":
+                   route=route, **nuisance_level(config))
+    if route.backend == "torch":
         import torch
 
         torch.set_num_threads(1)  # one process per core, as for OpenCV (a GPU does the heavy work)
@@ -438,20 +513,9 @@ def nuisance_level(config: GenerateConfig) -> dict:
 
 
 def _renderer(profile):
-    """This worker's renderer for ``profile``: a :class:`gelsim.optics.Renderer`, or for the torch backend
-    a :class:`gelsim.optics.torch_backend.BatchRenderer` over one (built once per worker and sensor unit)."""
-    from .optics import Renderer
-
+    """This worker's renderer for ``profile`` (:meth:`Route.renderer`; built once per worker and sensor unit)."""
     w = _WORKER
-    config, fid = w["config"], w["fidelity"]
-    backend = config.render_backend(fid)
-    r = Renderer(profile, backend, supersample=fid.supersample, seed=config.seed,
-                 device=config.device if backend == "torch" else None)
-    if backend != "torch":
-        return r
-    from .optics.torch_backend import BatchRenderer
-
-    return BatchRenderer(r)
+    return w["route"].renderer(profile, w["fidelity"], w["config"].seed)
 
 
 def _device_name(renderer) -> str:
@@ -480,28 +544,32 @@ def _unit(k: int):
     return w["units"][k], w["unit_renderers"][k]
 
 
-@contextlib.contextmanager
-def _frame_sinks(renderer, video: Path, fps: float, seed: int):
-    """(sequence options, sinks) that write one sequence's frames to ``video``: rendered by the sequence
-    with ``renderer`` (a :class:`gelsim.optics.Renderer`), or for the torch backend (a
-    :class:`gelsim.optics.torch_backend.BatchRenderer`) by a :class:`gelsim.sinks.DeviceFrames` sink,
-    ``config.batch`` frames at a time with the sequence's noise (``seed``), while a writer thread encodes
-    the previous batch. Leaving the block by an error discards the video."""
-    from .optics.torch_backend import DEFAULT_BATCH, BatchRenderer
+def _options(**kw):
+    """A sequence's options in this worker: the dataset's sensor seed and nuisance level, and ``kw``."""
     from .sequence import SequenceOptions
+
+    return SequenceOptions(sensor_seed=_WORKER["config"].seed, nuisance=_WORKER["nuisance"],
+                           nuisance_stages=_WORKER["nuisance_stages"], **kw)
+
+
+@contextlib.contextmanager
+def _frame_sinks(renderer, video: Path, fps: float):
+    """(sequence options, sinks) that write one sequence's frames to ``video``: rendered by the sequence with
+    ``renderer`` (a :class:`gelsim.optics.Renderer`), or with the torch backend's optics (a
+    :class:`gelsim.optics.torch_backend.BatchRenderer`) by a :class:`gelsim.sinks.DeviceFrames` sink,
+    :attr:`Route.batch` frames at a time from the records' optics inputs, while a writer thread encodes the
+    previous batch. Leaving the block by an error discards the video."""
     from .sinks import DeviceFrames, VideoSink
-    from .stream import noise_generator
 
     config: GenerateConfig = _WORKER["config"]
-    nuisance = dict(nuisance=_WORKER["nuisance"], nuisance_stages=_WORKER["nuisance_stages"])
+    route: Route = _WORKER["route"]
     with contextlib.ExitStack() as stack:
         writer = stack.enter_context(VideoSink(video, fmt=config.format, fps=fps))
-        if not isinstance(renderer, BatchRenderer):
-            yield SequenceOptions(renderer=renderer, sensor_seed=config.seed, **nuisance), [writer]
+        if route.backend != "torch":
+            yield _options(renderer=renderer), [writer]
             return
-        device = stack.enter_context(DeviceFrames(renderer, config.batch or DEFAULT_BATCH, noise_generator(seed),
-                                                  [writer]))
-        yield SequenceOptions(sensor_seed=config.seed, outputs={"imprint", "markers"}, **nuisance), [device]
+        device = stack.enter_context(DeviceFrames(renderer, route.batch, [writer]))
+        yield _options(outputs={"imprint", "markers"}), [device]
 
 
 def _motion(spec: SequenceSpec):
@@ -529,7 +597,7 @@ def generate_sequence(spec: SequenceSpec) -> dict:
     t0 = time.perf_counter()
     motion = _motion(spec)
     vpath = root / video_path(spec.video_stem(), config.format)
-    with _frame_sinks(renderer, vpath, profile.image.fps_hz, spec.seed) as (options, sinks):
+    with _frame_sinks(renderer, vpath, profile.image.fps_hz) as (options, sinks):
         labels, timings = drain(render_sequence(fabric, motion, profile, fidelity, seed=spec.seed, options=options),
                                 sinks)
     te = stage_clock()
@@ -541,15 +609,17 @@ def generate_sequence(spec: SequenceSpec) -> dict:
 
 
 def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None) -> list[dict]:
-    """``--stages all``: simulate the sequences of one :func:`device_groups` group on the CPU, render them in step on
-    the device (:func:`gelsim.device.frame.render_sequences`: the imprint, labels, markers and frames), encode and
-    record each (in a worker). ``write``: the ids to write (default: all; a resumed run recomputes a group whose
-    other members are written already, so that each sequence is made in its own group). Returns their records,
-    whose stage times are the group's shared by frames (the CPU part, ``fabric`` and ``physics``, their own)."""
-    from .device.frame import prepare_sequence, render_sequences
-    from .optics.torch_backend import DEFAULT_BATCH
-    from .sinks import VideoSink
-    from .stream import FrameRecord, stage_clock
+    """``--stages all``: the sequences of one :func:`device_groups` group in step on the torch engine
+    (:func:`gelsim.sequence.render_sequences`: the contact simulation and the fabric's patch of each on the CPU,
+    then frame t of each in one batch of the pipeline: imprint, nuisance, markers, labels, frames), each
+    sequence's records into its own video (:func:`gelsim.sinks.drain_each`), its labels and record written (in a
+    worker). ``write``: the ids to write (default: all; a resumed run recomputes a group whose other members are
+    written already, so that each sequence is made in its own group). Returns their records, whose stage times
+    are their shares of the group's (the CPU part, ``fabric`` and ``physics``, their own)."""
+    from .engines import TorchEngine
+    from .sequence import render_sequences
+    from .sinks import VideoSink, drain_each
+    from .stream import stage_clock
     from .video import video_path
 
     w = _WORKER
@@ -559,40 +629,27 @@ def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None
     fabric = w["catalog"][specs[0].fabric_id]
     write = {s.id for s in specs} if write is None else set(write)
     t0 = time.perf_counter()
-    prepared = []
-    for spec in specs:
-        prepared.append(prepare_sequence(fabric, _motion(spec), profile, fidelity, seed=spec.seed))
+    motions = [_motion(spec) for spec in specs]
     paths = {s.id: root / video_path(s.video_stem(), config.format) for s in specs if s.id in write}
+    engine = TorchEngine(renderer.device, optics_batch=w["route"].batch)
     with contextlib.ExitStack() as stack:
-        writers = {i: stack.enter_context(VideoSink(paths[s.id], fmt=config.format, fps=profile.image.fps_hz))
-                   for i, s in enumerate(specs) if s.id in write}
-
-        def sink(frames, where):
-            for f, (i, step) in zip(frames, where):
-                if i in writers:
-                    writers[i].write(FrameRecord(step, None, None, None, f, {}, {}))
-
-        out = render_sequences(prepared, profile, fidelity, renderer, sensor_seed=config.seed, sink=sink,
-                               sync=False, optics_batch=config.batch or DEFAULT_BATCH)
-        for v in writers.values():
-            v.close()
+        sinks = [[stack.enter_context(VideoSink(paths[s.id], fmt=config.format, fps=profile.image.fps_hz))]
+                 if s.id in write else [] for s in specs]
+        results = drain_each(render_sequences([(fabric, m, s.seed) for s, m in zip(specs, motions)], profile, fidelity,
+                                              options=_options(renderer=renderer), engine=engine), sinks)
     wall = time.perf_counter() - t0
-    frames = sum(p.motion.num_frames for p in prepared)
+    frames = sum(m.num_frames for m in motions)
     device = _device_name(renderer)
     records = []
-    for i, (spec, prep, labels) in enumerate(zip(specs, prepared, out["labels"])):
+    for spec, motion, (labels, timings) in zip(specs, motions, results):
         if spec.id not in write:
             continue
-        share = prep.motion.num_frames / frames
         te = stage_clock()
         lpath = root / spec.labels_rel()
         atomic_write_npz(lpath, **labels)
-        timings = dict(prep.seconds)
-        for k, v in out["seconds"].items():
-            timings[k] = timings.get(k, 0.0) + v * share
-        timings["encode"] = writers[i].seconds["encode"] + stage_clock() - te
-        records.append(_record(spec, prep.motion, root, paths[spec.id], lpath, labels, timings, wall * share,
-                               device))
+        timings["encode"] = timings.get("encode", 0.0) + stage_clock() - te
+        records.append(_record(spec, motion, root, paths[spec.id], lpath, labels, timings,
+                               wall * motion.num_frames / frames, device))
     return records
 
 
@@ -638,15 +695,14 @@ def _render_section(config: GenerateConfig, records: dict[str, dict]) -> dict:
     elsewhere lists each), torch's version for the torch backend, and where the labels come from."""
     from .fidelity import get_fidelity
 
-    backend = config.render_backend(get_fidelity(config.fidelity))
-    out: dict[str, Any] = {"backend": backend, "stages": config.stages if backend == "torch" else "none",
+    route = Route.of(config, get_fidelity(config.fidelity))
+    out: dict[str, Any] = {"backend": route.backend, "stages": route.stages,
                            "devices": sorted({r["device"] for r in records.values() if "device" in r})}
-    if backend == "torch":
+    if route.backend == "torch":
         import torch
 
         out["torch"] = torch.__version__
-    out["labels"] = ("device: the torch engine, within gelsim.gel.twoscale_torch.TOLERANCE of the numpy path"
-                     if backend == "torch" and config.stages == "all" else "numpy: the bit-exact reference")
+    out["labels"] = route.labels_origin
     return out
 
 
@@ -707,34 +763,10 @@ def _load_records(root: Path, specs: list[SequenceSpec]) -> dict[str, dict]:
     return done
 
 
-def check_render(config: GenerateConfig, fidelity) -> None:
-    """``config``'s render backend, device and batch, checked before anything is written: one line for a
-    backend that does not exist, a device this machine does not have, or a device or batch without the
-    torch backend."""
-    from .errors import check_choice
-    from .optics import BACKENDS
-
-    backend = config.render_backend(fidelity)
-    check_choice("--backend", backend, BACKENDS)
-    check_choice("--stages", config.stages, DEVICE_STAGES)
-    if backend != "torch":
-        if config.device is not None or config.batch is not None or config.stages != "optics":
-            raise GelsimError(f"--device, --batch and --stages are for --backend torch, not {backend}; add "
-                              "--backend torch or drop them")
-        return
-    if config.stages == "all" and (config.nuisance != "none" or config.nuisance_severity is not None):
-        raise GelsimError(f"--nuisance {config.nuisance} runs in the numpy frame stream and the torch optics, not in "
-                          "--stages all (the whole frame on the device); use --stages optics or drop --nuisance")
-    if config.stages == "all" and fidelity.imprint_model != "twoscale":
-        raise GelsimError(f"--stages all runs the twoscale imprint on the device (fidelity fast or balanced), not "
-                          f"{fidelity.name}'s {fidelity.imprint_model!r}; choose --fidelity fast or balanced, or "
-                          "--stages optics")
-    if config.batch is not None and (isinstance(config.batch, bool) or not isinstance(config.batch, int)
-                                     or config.batch < 1):
-        raise GelsimError(f"--batch {config.batch!r} is invalid; give a whole number of frames >= 1")
-    from .optics.torch_backend import resolve_device
-
-    resolve_device(config.device)
+def check_render(config: GenerateConfig, fidelity) -> Route:
+    """``config``'s render backend, device, batch and stages, checked before anything is written (:meth:`Route.of`):
+    its route."""
+    return Route.of(config, fidelity)
 
 
 def resolve_profile(config: GenerateConfig):
@@ -845,9 +877,9 @@ def _group_job(job: tuple[list[SequenceSpec], list[str]]) -> list[dict]:
     return generate_group(*job)
 
 
-def _flat(results, config: GenerateConfig):
+def _flat(results, route: Route):
     """One record at a time from per-sequence results, or from ``--stages all``'s per-group lists."""
-    if config.stages != "all":
+    if not route.in_step:
         yield from results
         return
     for recs in results:
@@ -861,13 +893,14 @@ def _catalog():
 
 
 @contextlib.contextmanager
-def _sequence_results(config: GenerateConfig, root: Path, todo: list[SequenceSpec], workers: int | None, cluster):
-    """The records of ``todo`` as they finish: from Ray tasks (``cluster``), in this process (one
-    worker) or from a pool of forked workers."""
+def _sequence_results(config: GenerateConfig, route: Route, root: Path, todo: list[SequenceSpec], workers: int | None,
+                      cluster):
+    """The records of ``todo`` as they finish (``route``: one sequence per job, or a group in step): from Ray tasks
+    (``cluster``), in this process (one worker) or from a pool of forked workers."""
     if cluster is not None:
         from .cluster import cluster_cpus, run_unordered
 
-        if config.stages == "all":   # a group per task (its members still to do written)
+        if route.in_step:   # a group per task (its members still to do written)
             yield (rec for recs in run_unordered(cluster, ray_group, _group_jobs(todo, config),
                                                  args=(config, str(root)), label=lambda job: _task_label(job[0]))
                    for rec in recs)
@@ -879,18 +912,18 @@ def _sequence_results(config: GenerateConfig, root: Path, todo: list[SequenceSpe
         return
     workers = max(1, workers or os.cpu_count() or 1)
     fn, jobs = generate_sequence, todo
-    if config.stages == "all":     # whole groups, each sequence written where it is still to do
+    if route.in_step:     # whole groups, each sequence written where it is still to do
         fn, jobs = _group_job, _group_jobs(todo, config)
     if workers == 1:
         _worker_init(config, str(root))
-        yield _flat(map(fn, jobs), config)
+        yield _flat(map(fn, jobs), route)
         return
     import multiprocessing as mp
 
     pool = mp.get_context(_pool_start_method()).Pool(workers, initializer=_worker_init,
                                                       initargs=(config, str(root)))
     try:
-        yield _flat(pool.imap_unordered(fn, jobs, chunksize=1), config)
+        yield _flat(pool.imap_unordered(fn, jobs, chunksize=1), route)
     finally:
         pool.terminate()
         pool.join()
@@ -918,7 +951,7 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
         raise GelsimError(f"--format {config.format!r} is unknown; choose one of {', '.join(EXTENSIONS)}")
     catalog = load_catalog()
     profile = resolve_profile(config)
-    check_render(config, get_fidelity(config.fidelity))
+    route = check_render(config, get_fidelity(config.fidelity))
     if not 0 <= config.units <= MAX_UNITS:
         raise GelsimError(f"--units {config.units} is out of range; give 0 (the profile itself) to {MAX_UNITS}")
     unit_profiles(config, profile)  # a profile without [unit_variation] fails here, before anything is written
@@ -942,10 +975,11 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
             from .cluster import check_shared_dir
 
             check_shared_dir(cluster, root)
-        return _generate_in(config, root, catalog, profile, specs, workers, progress, previews, cluster)
+        return _generate_in(config, route, root, catalog, profile, specs, workers, progress, previews, cluster)
 
 
-def _generate_in(config, root: Path, catalog, profile, specs, workers, progress, previews, cluster) -> dict:
+def _generate_in(config, route: Route, root: Path, catalog, profile, specs, workers, progress, previews,
+                 cluster) -> dict:
     """The rest of :func:`generate` once ``root`` is checked (and, with Ray, seen by every node)."""
     _clean_partials(root)
     records = _load_records(root, specs)
@@ -959,7 +993,7 @@ def _generate_in(config, root: Path, catalog, profile, specs, workers, progress,
     total = len(specs)
     done = len(records)
     if todo:
-        with _sequence_results(config, root, todo, workers, cluster) as results:
+        with _sequence_results(config, route, root, todo, workers, cluster) as results:
             for rec in results:
                 records[rec["id"]] = rec
                 done += 1

@@ -7,7 +7,7 @@ under the sensor and pressed straight in), used by ``gelsim render`` and ``gelsi
   pressed with a normal force (N) or to a depth (mm past first touch) -> :class:`gelsim.gel.Imprint`;
 * :func:`render_frame`: that imprint, its markers and the camera -> ``uint8 (H, W, 3)`` RGB frame and a
   record of what was rendered, with each stage's time in ms (the one-frame function of every caller,
-  :func:`gelsim.stream.make_frame`);
+  :func:`gelsim.stream.make_frames`);
 * :func:`press_report`: the press against Hertz's rigid sphere on an elastic half-space (spheres; on a
   domed gel with the dome's curvature added): contact radius and indentation, mm.
 """
@@ -74,8 +74,9 @@ def render_frame(obj: TouchedObject, profile: str | Path | SensorProfile = "vita
     (indentation mm, force N, contact area mm^2, deepest point mm), the marker count and
     ``stages_ms`` (wall time per stage, ms).
     """
+    from .engines import NumpyEngine
     from .optics import Renderer
-    from .stream import FrameSetup, StageTimer, Touch, make_frame
+    from .stream import FrameRequest, FrameSetup, StageTimer, Touch, make_frames
 
     timer = StageTimer(time.perf_counter)   # wall time: `gelsim render` reports what the user waits for
     prof = _profile(profile)
@@ -98,12 +99,13 @@ def render_frame(obj: TouchedObject, profile: str | Path | SensorProfile = "vita
     renderer = Renderer(prof, backend, supersample=fid.supersample, seed=seed, device=device)
     timer.lap("renderer_setup")
     try:
-        imprint, markers, rgb = make_frame(touch, FrameSetup.make(prof, fid, sensor_seed=seed, renderer=renderer),
-                                           seed=seed, timer=timer)
+        made = make_frames([FrameRequest(touch, seed)], FrameSetup.make(prof, fid, sensor_seed=seed, renderer=renderer),
+                           NumpyEngine(clock=time.perf_counter))
     finally:
         renderer.close()
+    imprint, markers, rgb = made.parts[0].imprint, made.parts[0].markers, made.parts[0].frame
     # the optics stage is what `gelsim render` has always called "render"
-    times = {("render" if k == "optics" else k): round(v * 1e3, 2) for k, v in timer.take().items()}
+    times = {("render" if k == "optics" else k): round(v * 1e3, 2) for k, v in {**timer.take(), **made.seconds}.items()}
     info["imprint"] = {"indentation_mm": imprint.indentation_mm, "normal_force_n": imprint.normal_force_n,
                        "contact_area_mm2": imprint.contact_area_mm2, "bottomed_out": imprint.bottomed_out,
                        "max_depth_mm": float(imprint.depth_mm.max())}

@@ -32,25 +32,23 @@ and for measuring the savings).
 """
 from __future__ import annotations
 
-import functools
+import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Collection, Iterator, Mapping
+from typing import Collection, Iterator, Mapping, Sequence
 
 import numpy as np
 
 from .contact import ContactFrames, Surface, simulate
 from .errors import GelsimError
 from .fidelity import Fidelity
-from .gel import Imprint
 from .gel.twoscale import crown_envelope, texture_scale_mm
-from .labels import contact_location
-from .markers import Markers
 from .motion import Motion
 from .optics import Renderer
 from .scene import PHYSICS_MM_PER_PX, HeightPatch, TouchedObject, as_object, physics_surface, press_properties, travel_patch  # noqa: F401
 from .sensor import SensorProfile
-from .stream import FrameRecord, FrameSetup, StageTimer, Touch, make_frame, noise_generator
+from .stream import (NUMPY, FrameParts, FrameRecord, FrameRequest, FrameSetup, StageTimer, Touch, make_frames,
+                     noise_generator)
 
 # Shear and twist terms that move no marker by more than this are skipped, px. A marker edge
 # moving by 0.005 px changes its anti-aliased coverage by 0.5% of a pixel: at most about
@@ -116,104 +114,180 @@ def crown_envelope_patch(patch: HeightPatch | None, obj: TouchedObject, profile:
     return HeightPatch(crown_envelope(patch.heights_mm, tex, patch.mm_per_px), patch.origin_mm, patch.mm_per_px)
 
 
+class SequenceRun:
+    """One sequence's frames, one at a time, for any engine: what :func:`render_sequences` keeps per sequence.
+
+    Built once (the contact simulation, the object's image-resolution patch and its crown envelope, the nuisance,
+    the noise stream: their seconds in :attr:`seconds`), it gives each frame's pose and request
+    (:meth:`request`: the :class:`gelsim.stream.Touch` with the sequence's shortcuts and warm start) and makes its
+    record from what the pipeline made (:meth:`record`: the contact simulation's row of labels, then the
+    pipeline's)."""
+
+    def __init__(self, obj, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *, seed: int,
+                 options: SequenceOptions = SequenceOptions()):
+        o = self.options = options
+        self.obj = obj = as_object(obj)
+        self.motion, self.profile, self.fidelity, self.seed, self.shortcuts = motion, profile, fidelity, seed, o.shortcuts
+        contact = o.contact
+        if contact is not None and len(contact.normal_force_n) != motion.num_frames:
+            raise GelsimError(f"contact has {len(contact.normal_force_n)} frames, the motion {motion.num_frames}; "
+                              "simulate this motion")
+        self.want_imprint = bool({"frames", "markers", "imprint"} & o.outputs)
+        timer = StageTimer()
+        if contact is None:
+            surface = o.surface if o.surface is not None else physics_surface(obj, motion, profile, seed=seed)
+            timer.lap("fabric")
+            contact = simulate(motion, surface, profile, fidelity)
+            timer.lap("physics")
+        self.contact = contact
+        self.props = press_properties(obj)
+        # The image-resolution patch is the costliest fabric step: built only if some frame presses.
+        touches = bool(np.any(contact.in_contact & (contact.normal_force_n > 0)))
+        patch = o.patch
+        if patch is None and self.want_imprint and (touches or not o.shortcuts):
+            patch = travel_patch(obj, motion, profile, profile.image.mm_per_px, seed=seed,
+                                 poses=(contact.position_mm, contact.yaw_deg))
+        self.patch = patch
+        # The crown envelope of the object's texture is a property of the object, not of the pose: taken once
+        # on the patch and seen through each frame's pose like the heights (press(envelope_mm=)).
+        self.envelope = crown_envelope_patch(patch, obj, profile, fidelity)
+        timer.lap("fabric")
+        self.nuisance = None
+        if o.nuisance:
+            from .nuisance import load_nuisance
+            from .nuisance.sequence import SequenceNuisance
+
+            stages = o.nuisance_stages if o.nuisance_stages is not None else load_nuisance().stages
+            hairiness = float(getattr(getattr(obj, "fabric", None), "hairiness", 0.0) or 0.0)
+            self.nuisance = SequenceNuisance(o.nuisance, stages, seed, hairiness, profile, motion)
+            timer.lap("nuisance")
+        self.seconds = timer.take()
+        self.state = contact.to_dict()
+        self.rng = noise_generator(seed)
+        self.window = "touched" if o.shortcuts else "full"
+        self.prev = None  # the previous frame's imprint warm-starts the next (same result, fewer iterations)
+
+    @property
+    def num_frames(self) -> int:
+        return self.motion.num_frames
+
+    def again(self) -> "SequenceRun":
+        """This sequence from its first frame again, its contact simulation and patch reused (a benchmark's
+        repetition: no physics)."""
+        return SequenceRun(self.obj, self.motion, self.profile, self.fidelity, seed=self.seed,
+                           options=dataclasses.replace(self.options, contact=self.contact, patch=self.patch))
+
+    def touching(self, i: int) -> bool:
+        """Frame ``i`` is pressed: in contact with a positive normal force."""
+        return bool(self.contact.in_contact[i]) and float(self.contact.normal_force_n[i]) > 0.0
+
+    def pose(self, i: int):
+        """Frame ``i``'s pose, (x mm, y mm, yaw deg, (tilt x, tilt y) deg), when it presses the gel (a frame out of
+        contact does not, with the shortcuts; nor any when no output needs an imprint); None else."""
+        if not (self.want_imprint and (self.touching(i) or not self.shortcuts)):
+            return None
+        c = self.contact
+        return c.position_mm[i, 0], c.position_mm[i, 1], c.yaw_deg[i], tuple(c.tilt_deg[i])
+
+    def request(self, i: int, protrusion_mm=None, envelope_mm=None) -> FrameRequest:
+        """Frame ``i``'s request to the pipeline, given its heights (``protrusion_mm``, ``envelope_mm``: the patch
+        and the envelope seen through :meth:`pose`; ignored when the frame does not press)."""
+        touch = None
+        if self.pose(i) is not None:
+            c = self.contact
+            force = float(c.normal_force_n[i])
+            shear, twist = tuple(float(v) for v in c.shear_mm[i]), float(c.twist_deg[i])
+            if self.shortcuts:
+                skip_shear, skip_twist = negligible_px(shear, twist, self.profile)
+                shear = (0.0, 0.0) if skip_shear else shear
+                twist = 0.0 if skip_twist else twist
+            touch = Touch(protrusion_mm, force_n=force if self.touching(i) else 0.0, shear_mm=shear, twist_deg=twist,
+                          warm=self.prev, window=self.window, envelope_mm=envelope_mm, properties=self.props)
+        return FrameRequest(touch, self.rng, True, self.nuisance, i, self.contact.tilt_deg[i])
+
+    def record(self, i: int, request: FrameRequest, part: FrameParts, seconds: dict) -> FrameRecord:
+        """Frame ``i``'s record from the pipeline's ``part`` of it (its ``frame`` on the host) and its ``seconds``
+        (the sequence's set-up seconds go to its first record)."""
+        if request.touch is not None:
+            self.prev = part.imprint if self.touching(i) else None
+        if self.seconds:
+            seconds = _sum_seconds(self.seconds, seconds)
+            self.seconds = {}
+        labels = {k: v[i] for k, v in self.state.items()}
+        labels.update(part.labels)
+        return FrameRecord(i, request.touch, part.imprint, part.markers, part.frame, labels, seconds, part.nuisance,
+                           part.optics)
+
+
+def _sum_seconds(a: dict, b: dict) -> dict:
+    out = dict(a)
+    for k, v in b.items():
+        out[k] = out.get(k, 0.0) + v
+    return out
+
+
+def render_sequences(sequences: Sequence, profile: SensorProfile, fidelity: Fidelity, *,
+                     options: SequenceOptions = SequenceOptions(), engine=NUMPY) -> Iterator[tuple[int, FrameRecord]]:
+    """The frames of ``sequences`` ((object, motion, seed) each, made with ``options``, or a :class:`SequenceRun`
+    made already) in step: frame t of every sequence still running
+    in one batch of the pipeline (:func:`gelsim.stream.make_frames` on ``engine``), each warm-started from its own
+    frame t - 1. Yields ``(k, record)``, sequence ``k``'s :class:`gelsim.stream.FrameRecord` of each frame, the
+    sequences' frames in order (:func:`gelsim.sinks.drain_each` feeds each sequence's to its own sinks).
+
+    A record's seconds are its share of its batch's (the engine's clock: CPU seconds on the numpy engine, wall
+    seconds on the torch engine) and, in its sequence's first record, the sequence's set-up (the contact
+    simulation, the patch: CPU seconds). The torch engine's frames depend on their batch by float rounding only
+    (docs/device.md); the numpy engine's not at all. ``options`` as :func:`render_sequence`'s, for every sequence
+    (``contact``, ``surface``, ``patch``: with one sequence only); its renderer: one for ``engine``
+    (a :class:`gelsim.optics.torch_backend.BatchRenderer` for the torch engine), default the engine's."""
+    o = options
+    if len(sequences) > 1 and (o.contact is not None or o.surface is not None or o.patch is not None):
+        raise GelsimError("a contact, surface or patch given in the options is one sequence's; run the sequences "
+                          "one by one with it, or drop it")
+    runs = [s if isinstance(s, SequenceRun) else SequenceRun(*s[:2], profile, fidelity, seed=s[2], options=o)
+            for s in sequences]
+    want_frames = "frames" in o.outputs
+    want_markers = want_frames or "markers" in o.outputs
+    renderer = (o.renderer or engine.renderer(profile, fidelity, o.sensor_seed)) if want_frames else None
+    setup = FrameSetup.make(profile, fidelity, sensor_seed=o.sensor_seed, markers=want_markers, renderer=renderer,
+                            imprint_labels=runs[0].want_imprint, marker_labels=want_markers)
+    timer = StageTimer(engine.clock)
+    heights = engine.upload([r.patch for r in runs])
+    envelopes = engine.upload([r.envelope for r in runs])
+    timer.lap("upload")
+    for step in range(max(r.num_frames for r in runs)):
+        live = [k for k, r in enumerate(runs) if step < r.num_frames]
+        pressing = [k for k in live if runs[k].pose(step) is not None]
+        poses = [runs[k].pose(step) for k in pressing]
+        prot = dict(zip(pressing, engine.heights(heights, pressing, poses, profile)))
+        env = dict(zip(pressing, engine.envelopes(envelopes, pressing, poses, profile)))
+        requests = [runs[k].request(step, prot.get(k), env.get(k)) for k in live]
+        if pressing:
+            timer.lap("fabric")
+        made = make_frames(requests, setup, engine)
+        timer.restart()                     # (the pipeline's own seconds are in made.seconds)
+        frames = None if made.frames is None else engine.to_host(made.frames)
+        if frames is not None:
+            timer.lap("optics")             # the frames' way to the host
+        seconds = _sum_seconds(timer.take(), made.seconds)
+        share = {k: v / len(live) for k, v in seconds.items()}
+        for j, k in enumerate(live):
+            part = made.parts[j] if frames is None else dataclasses.replace(made.parts[j], frame=frames[j])
+            yield k, runs[k].record(step, requests[j], part, share)
+        timer.restart()  # time spent by the consumer (encoding) is not ours
+
+
 def render_sequence(obj: TouchedObject, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *,
                     seed: int, options: SequenceOptions = SequenceOptions()) -> Iterator[FrameRecord]:
     """Yield one :class:`gelsim.stream.FrameRecord` per frame of the sequence (constant memory): its pose and
-    forces, imprint, markers, labels and, when rendered, its ``uint8 (H, W, 3)`` frame, each made by
-    :func:`gelsim.stream.make_frame`. The sequence's labels are :func:`gelsim.stream.sequence_labels` of the
-    records' (:func:`gelsim.sinks.drain` collects them), its stage times the sum of theirs.
+    forces, imprint, markers, labels and, when rendered, its ``uint8 (H, W, 3)`` frame, each made by the frame
+    pipeline (:func:`gelsim.stream.make_frames`, the numpy engine; :func:`render_sequences` of this one
+    sequence). The sequence's labels are :func:`gelsim.stream.sequence_labels` of the records'
+    (:func:`gelsim.sinks.drain` collects them), its stage times the sum of theirs.
 
     ``obj``: what the sensor touches (a :class:`gelsim.scene.TouchedObject`, or a catalog Fabric).
     ``seed`` drives everything random in this sequence (the object's irregularity phase, the camera
     noise: :func:`gelsim.stream.noise_generator`). ``options``: see :class:`SequenceOptions`.
     """
-    o = options
-    obj = as_object(obj)
-    contact = o.contact
-    if contact is not None and len(contact.normal_force_n) != motion.num_frames:
-        raise GelsimError(f"contact has {len(contact.normal_force_n)} frames, the motion {motion.num_frames}; "
-                          "simulate this motion")
-    want_frames = "frames" in o.outputs
-    want_markers = want_frames or "markers" in o.outputs
-    want_imprint = want_markers or "imprint" in o.outputs
-    timer = StageTimer()
-    renderer = None
-    if want_frames:
-        renderer = o.renderer or Renderer(profile, fidelity.render_backend, supersample=fidelity.supersample,
-                                          seed=o.sensor_seed)
-    if contact is None:
-        surface = o.surface if o.surface is not None else physics_surface(obj, motion, profile, seed=seed)
-        timer.lap("fabric")
-        contact = simulate(motion, surface, profile, fidelity)
-        timer.lap("physics")
-    props = press_properties(obj)
-    # The image-resolution patch is the costliest fabric step: built only if some frame presses.
-    touches = bool(np.any(contact.in_contact & (contact.normal_force_n > 0)))
-    patch = o.patch
-    if patch is None and want_imprint and (touches or not o.shortcuts):
-        patch = travel_patch(obj, motion, profile, profile.image.mm_per_px, seed=seed,
-                             poses=(contact.position_mm, contact.yaw_deg))
-    # The crown envelope of the object's texture is a property of the object, not of the pose: taken once
-    # on the patch and seen through each frame's pose like the heights (press(envelope_mm=)).
-    envelope = crown_envelope_patch(patch, obj, profile, fidelity)
-    setup = FrameSetup.make(profile, fidelity, sensor_seed=o.sensor_seed, markers=want_markers, renderer=renderer)
-    timer.lap("fabric")
-
-    nuis = None
-    if o.nuisance:
-        from .nuisance import load_nuisance
-        from .nuisance.sequence import SequenceNuisance
-
-        stages = o.nuisance_stages if o.nuisance_stages is not None else load_nuisance().stages
-        hairiness = float(getattr(getattr(obj, "fabric", None), "hairiness", 0.0) or 0.0)
-        nuis = SequenceNuisance(o.nuisance, stages, seed, hairiness, profile, motion)
-        timer.lap("nuisance")
-    state = contact.to_dict()
-    rng = noise_generator(seed)
-    window = "touched" if o.shortcuts else "full"
-    prev = None  # the previous frame's imprint warm-starts the next (same result, fewer iterations)
-    for i in range(motion.num_frames):
-        force = float(contact.normal_force_n[i])
-        touching = bool(contact.in_contact[i]) and force > 0.0
-        touch = None
-        if want_imprint and (touching or not o.shortcuts):
-            pose = (profile.shape, profile.image.mm_per_px, contact.position_mm[i, 0], contact.position_mm[i, 1],
-                    contact.yaw_deg[i], tuple(contact.tilt_deg[i]))
-            shear, twist = tuple(float(v) for v in contact.shear_mm[i]), float(contact.twist_deg[i])
-            if o.shortcuts:
-                skip_shear, skip_twist = negligible_px(shear, twist, profile)
-                shear = (0.0, 0.0) if skip_shear else shear
-                twist = 0.0 if skip_twist else twist
-            touch = Touch(patch.sample(*pose), force_n=force if touching else 0.0, shear_mm=shear, twist_deg=twist,
-                          warm=prev, window=window,
-                          envelope_mm=None if envelope is None else functools.partial(envelope.sample, *pose),
-                          properties=props)
-            timer.lap("fabric")
-        extra = None if nuis is None else functools.partial(nuis.frame, i, tilt_deg=contact.tilt_deg[i])
-        imprint, markers, frame = make_frame(touch, setup, seed=rng, timer=timer, nuisance=extra)
-        extra = None if nuis is None else nuis.last
-        if touch is not None:
-            prev = imprint if touching else None
-        labels = _frame_labels({k: v[i] for k, v in state.items()}, imprint, markers, want_imprint, want_markers)
-        yield FrameRecord(i, touch, imprint, markers, frame, labels, timer.take(), extra)
-        timer.restart()  # time spent by the consumer (encoding) is not ours
-
-
-def _frame_labels(state: dict, imprint: Imprint | None, markers: Markers | None, imprint_labels: bool,
-                  marker_labels: bool) -> dict[str, np.ndarray]:
-    """One frame's labels (:data:`gelsim.schema.LABELS` order and dtypes): its pose and forces (``state``, the
-    contact simulation's row), then the imprint's (zero and NaN without one) and the markers' if asked."""
-    labels = dict(state)
-    if imprint_labels:
-        if imprint is None:
-            depth, area, centroid, bbox = 0.0, 0.0, np.full(2, np.nan), np.full(4, np.nan)
-        else:
-            depth, area = imprint.indentation_mm, imprint.contact_area_mm2
-            centroid, bbox = contact_location(imprint.contact_mask)
-        labels.update(indentation_mm=np.float32(depth), contact_area_mm2=np.float32(area),
-                      contact_centroid_px=centroid.astype(np.float32), contact_bbox_px=bbox.astype(np.float32))
-    if marker_labels:
-        none = np.zeros((0, 2), np.float32)
-        labels.update(markers_xy_px=none if markers is None else markers.xy_px.astype(np.float32, copy=False),
-                      markers_rest_px=none if markers is None else markers.rest_px.astype(np.float32, copy=False))
-    return labels
+    for _, record in render_sequences([(obj, motion, seed)], profile, fidelity, options=options):
+        yield record

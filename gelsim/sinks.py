@@ -7,8 +7,9 @@ its sinks and returns the sequence's labels and stage times; a sink that holds a
 thread) is also a context manager that releases it when the caller's block fails.
 
 * :class:`VideoSink`: the frames into a video file (``encode``): the dataset's writer, the bench's;
-* :class:`DeviceFrames`: renders the frames on a torch device, ``batch`` at a time, and passes the
-  completed records to its own sinks on a writer thread (``gelsim generate --backend torch``);
+* :class:`DeviceFrames`: renders the records' frames (their optics inputs, :attr:`FrameRecord.optics`) on a
+  torch device, ``batch`` at a time, and passes the completed records to its own sinks on a writer thread
+  (``gelsim generate --backend torch``);
 * :class:`KeepFrames`: keeps the frames in memory (the bench compares them);
 * :class:`ImprintCapture`: keeps each pressed frame's depth map and contact mask (the bench's texture
   metrics).
@@ -48,17 +49,26 @@ def drain(records: Iterable[FrameRecord], sinks: Sequence[Sink] = ()) -> tuple[d
     """Every record of ``records`` to each of ``sinks`` in turn, then the sinks closed: returns the sequence's
     labels (:func:`gelsim.stream.sequence_labels`) and CPU seconds per stage, the stream's and the sinks'
     together. Only the labels of the records are kept here (constant memory)."""
-    rows: list = []
-    seconds: dict[str, float] = {}
-    for rec in records:
-        for s in sinks:
+    return drain_each(((0, rec) for rec in records), [sinks])[0]
+
+
+def drain_each(records: Iterable[tuple[int, FrameRecord]], sinks: Sequence[Sequence[Sink]]) \
+        -> list[tuple[dict[str, np.ndarray], dict[str, float]]]:
+    """:func:`drain` of several sequences whose records come interleaved (``(k, record)``: sequence ``k``'s, in its
+    frame order; :func:`gelsim.sequence.render_sequences`), sequence ``k``'s into ``sinks[k]``: each sequence's
+    labels and seconds, in order."""
+    rows: list[list] = [[] for _ in sinks]
+    seconds: list[dict[str, float]] = [{} for _ in sinks]
+    for k, rec in records:
+        for s in sinks[k]:
             s.write(rec)
-        rows.append(rec.labels)
-        _add(seconds, rec.seconds)
-    for s in sinks:
-        s.close()
-        _add(seconds, s.seconds)
-    return sequence_labels(rows), seconds
+        rows[k].append(rec.labels)
+        _add(seconds[k], rec.seconds)
+    for k, group in enumerate(sinks):
+        for s in group:
+            s.close()
+            _add(seconds[k], s.seconds)
+    return [(sequence_labels(r), sec) for r, sec in zip(rows, seconds)]
 
 
 class VideoSink:
@@ -132,25 +142,25 @@ class ImprintCapture:
 
 class DeviceFrames:
     """Renders the frames of records that carry none (a sequence run without ``"frames"``), ``batch`` at a time,
-    through ``renderer`` (a :class:`gelsim.optics.torch_backend.BatchRenderer`) on its device, and passes each
-    record, its frame filled in, in order to ``sinks`` on a writer thread, which works while the next batch
-    is simulated and rendered. On a CUDA device a batch's rendering and its copy back run while the CPU
-    prepares the next.
+    through ``renderer`` (a :class:`gelsim.optics.torch_backend.BatchRenderer`) on its device, from each record's
+    inputs to the optics (:attr:`gelsim.stream.FrameRecord.optics`: the depth to render, the markers, the gains,
+    its noise seed), and passes each record, its frame filled in, in order to ``sinks`` on a writer thread, which
+    works while the next batch is simulated and rendered. On a CUDA device a batch's rendering and its copy back
+    run while the CPU prepares the next.
 
-    ``noise``: the sequence's :func:`gelsim.stream.noise_generator`: each frame's noise offsets are drawn from
-    it when its record arrives, in the order the numpy renderer draws them, so the frames are the same
-    bytes for any ``batch``. ``seconds``: ``optics`` (CPU seconds on the caller's thread: the draws, the
-    copies, the batches' rendering) and the sinks' (on the writer thread). Use as a context manager:
-    leaving it by an error stops the writer without rendering what is queued; :meth:`close` renders
-    what is queued, waits for the writer and re-raises its error.
+    Each frame's noise offsets are drawn from its seed (the sequence's :func:`gelsim.stream.noise_generator`)
+    when its record arrives, in the order the numpy renderer draws them, so the frames are the same bytes for
+    any ``batch``. ``seconds``: ``optics`` (CPU seconds on the caller's thread: the draws, the copies, the
+    batches' rendering) and the sinks' (on the writer thread). Use as a context manager: leaving it by an error
+    stops the writer without rendering what is queued; :meth:`close` renders what is queued, waits for the
+    writer and re-raises its error.
     """
 
-    def __init__(self, renderer, batch: int, noise: np.random.Generator, sinks: Sequence[Sink]):
+    def __init__(self, renderer, batch: int, sinks: Sequence[Sink]):
         if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
             raise GelsimError(f"--batch {batch!r} is invalid; give a whole number of frames >= 1")
         self.br = renderer
         self.batch = batch
-        self.noise = noise
         self.sinks = list(sinks)
         self.seconds: dict[str, float] = {"optics": 0.0}
         self._records: list[FrameRecord] = []    # the batch being filled (frozen: read at its launch)
@@ -183,7 +193,7 @@ class DeviceFrames:
         if self._error is not None:
             raise self._error
         t = stage_clock()
-        self._offsets.append(self.br.draw(self.noise, True))
+        self._offsets.append(self.br.draw(record.optics.seed, record.optics.noise))
         self._records.append(record)
         if len(self._records) >= self.batch:
             self._launch()
@@ -193,10 +203,11 @@ class DeviceFrames:
         """Render the queued frames (asynchronously on a GPU) and pass the previous batch to the writer."""
         if not self._records:
             return
-        depth, corners = self.br.stage([r.render_depth_mm for r in self._records], [r.markers for r in self._records])
-        gains = [r.gains for r in self._records]
+        inputs = [r.optics for r in self._records]
+        depth, corners = self.br.stage([i.depth_mm for i in inputs], [i.markers for i in inputs])
+        gains = [i.gains for i in inputs]
         out = self.br.quantise(self.br.compose(depth, corners, self._offsets,
-                                               None if all(g is None for g in gains) else gains), self._offsets)
+                                               None if all(g is None for g in gains) else gains, inputs), self._offsets)
         if out.device.type == "cuda":
             import torch
 

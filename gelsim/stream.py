@@ -1,47 +1,57 @@
-"""The frame stream: how one tactile frame is made, and the record that carries it to every consumer.
+"""The frame pipeline: how a batch of tactile frames is made, and the record that carries each to its consumers.
 
-One frame is three stages, in this order, made by :func:`make_frame` (and nowhere else):
+One function makes frames, for every caller: :func:`make_frames` takes a batch of :class:`FrameRequest` (each a
+:class:`Touch`, or None: nothing presses, the flat gel) and runs its stages, in this order, on an engine
+(:mod:`gelsim.engines`: the numpy engine, a frame at a time, the bit-exact reference; or the torch engine, the
+whole batch at once on a device):
 
-1. **imprint**: the object's protrusion pressed into the gel (:func:`gelsim.gel.press`) -> an
-   :class:`~gelsim.gel.Imprint` (depth map, contact mask, indentation, force, area);
-2. **markers**: the printed markers moved by the imprint and by the contact's shear and twist
-   (:func:`gelsim.markers.displace`) -> :class:`~gelsim.markers.Markers`;
-3. **optics**: the camera image of the pressed gel and its markers, with the camera's noise
-   (:meth:`gelsim.optics.Renderer.render`) -> ``uint8 (H, W, 3)`` RGB.
+1. **imprint**: the objects pressed into the gel (:class:`~gelsim.gel.Imprint`: depth, contact mask, indentation,
+   force, area);
+2. **nuisance**: each frame's :class:`~gelsim.nuisance.sequence.FrameNuisance` from its sequence's
+   :class:`~gelsim.nuisance.sequence.SequenceNuisance` (``frame(index, imprint, tilt_deg=)``): fibre dents added to
+   the depth the optics render (never to the imprint) and the camera's gains;
+3. **markers**: the printed markers moved by the imprint and the contact's shear and twist
+   (:class:`~gelsim.markers.Markers`);
+4. **labels**: the imprint's (indentation, area, contact centroid and box) and the markers' labels of
+   :data:`gelsim.schema.LABELS`, when the setup asks for them;
+5. **optics**: each frame's inputs to the optics in one :class:`~gelsim.optics.composite.OpticsInput` (the depth
+   to render, the markers, the gains, its noise seed), rendered to ``uint8 (H, W, 3)`` RGB.
 
-What presses is a :class:`Touch` (None: nothing does, the flat gel); what stays the same from frame to
-frame of one sensor (profile, fidelity, printed markers, renderer) is a :class:`FrameSetup`. Each stage's
-CPU time goes to a :class:`StageTimer`. Three callers run it:
+What stays the same from frame to frame of a sensor (profile, fidelity, printed markers, renderer, which labels) is
+a :class:`FrameSetup`; a stage whose input is absent does not run. The result is a :class:`FrameBatch`: per frame
+its :class:`FrameParts`, and the CPU (numpy engine) or wall (torch engine) seconds of each stage. Its callers:
 
-* :func:`gelsim.frame.render_frame`: one object pressed straight in (``gelsim render``);
-* :meth:`gelsim.mujoco.GelSightSensor.render`: one frame of a MuJoCo scene;
-* :func:`gelsim.sequence.render_sequence`: every frame of a sequence, each yielded as a
-  :class:`FrameRecord` (the frame's pose and forces and its labels with it).
+* :func:`gelsim.frame.render_frame` (``gelsim render``), :func:`gelsim.texture.texture_budget` (``gelsim texture``)
+  and :meth:`gelsim.mujoco.GelSightSensor.render`: :func:`make_frame`, a batch of one, numpy;
+* :func:`gelsim.sequence.render_sequence` (each frame of a sequence, numpy) and
+  :func:`gelsim.sequence.render_sequences` (sequences in step, frame t of each in one batch, torch), yielding one
+  :class:`FrameRecord` per frame to the sinks (:mod:`gelsim.sinks`: ``write(record)``, ``close()``, ``seconds``);
+* :class:`gelsim.mujoco.batch.BatchGelSightSensor`: N pads in one batch, torch.
 
-The records' consumers are sinks (:mod:`gelsim.sinks`, one interface: ``write(record)``, ``close()``,
-``seconds``): the dataset's video writer, the torch backend's batched renderer, the bench's captures.
 :func:`sequence_labels` assembles a sequence's labels from its records' (``docs/architecture.md``).
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, NamedTuple, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from .engines import NumpyEngine, stage_clock
 from .fidelity import Fidelity
-from .gel import Imprint, press
-from .markers import Markers, displace, rest_markers
+from .gel import Imprint
+from .markers import Markers, rest_markers
+from .optics.composite import OpticsInput
 from .schema import LABELS
 from .sensor import SensorProfile
 
-# Stage clock: the thread's CPU time. A generation worker is one thread on one core, so this is its
-# per-core cost whatever else the machine runs (wall time would count other processes' turns).
-stage_clock = time.thread_time
+__all__ = ["stage_clock", "StageTimer", "noise_generator", "Touch", "FrameRequest", "FrameSetup", "FrameParts",
+           "FrameBatch", "NUMPY", "make_frames", "make_frame", "FrameRecord", "sequence_labels", "PER_FRAME_LABELS"]
 
 #: The label keys with one row per frame (the others, ``markers_rest_px``, are the sequence's).
 PER_FRAME_LABELS = frozenset(k.name for k in LABELS if k.shape[:1] == ("T",))
+#: The numpy engine: every caller's unless it gives another (:mod:`gelsim.engines`).
+NUMPY = NumpyEngine()
 
 
 class StageTimer:
@@ -80,9 +90,9 @@ class Touch:
     fidelity), and how the contact surface is sheared and twisted relative to the sensor.
 
     protrusion_mm: float32 (H, W) mm, the object's heights towards the gel at the image's resolution or
-    on the imprint's grid; force_n (N; 0: the flat gel's imprint) or depth_mm (mm past first touch);
+    on the imprint's grid (a numpy array, or for the torch engine also a tensor on its device); force_n (N; 0: the flat gel's imprint) or depth_mm (mm past first touch);
     shear_mm: (x, y) mm and twist_deg: degrees (+x towards +y) of the contact surface; warm: the
-    previous frame's imprint (warm start); window: ``"touched"`` or ``"full"``; envelope_mm: the object's
+    previous frame's imprint of the same sequence as the engine made it (warm start); window: ``"touched"`` or ``"full"``; envelope_mm: the object's
     crown envelope as the protrusion sees it (an array or ``f(box)``); properties: the object's own
     (:func:`gelsim.scene.press_properties`: support, texture_mm, valley_mm)."""
     protrusion_mm: np.ndarray
@@ -97,77 +107,133 @@ class Touch:
 
 
 @dataclass(frozen=True)
+class FrameRequest:
+    """One frame to make: its :class:`Touch` (None: nothing presses it), where its random draws come from
+    (``seed``: an int, or its sequence's :func:`noise_generator`, drawn from once per rendered frame, in frame
+    order; ``noise`` False: a noiseless frame) and its sequence's nuisance (``nuisance``: a
+    :class:`~gelsim.nuisance.sequence.SequenceNuisance` whose ``frame(index, imprint, tilt_deg=tilt_deg)`` the
+    pipeline calls, in frame order, or None)."""
+    touch: Touch | None = None
+    seed: int | np.random.Generator = 0
+    noise: bool = True
+    nuisance: Any = None
+    index: int = 0
+    tilt_deg: Any = (0.0, 0.0)
+
+
+@dataclass(frozen=True)
 class FrameSetup:
     """What every frame of one sensor shares: its profile and fidelity, its printed markers at rest
-    (``flat_markers``: :func:`gelsim.markers.rest_markers`; None: no markers computed) and its renderer
-    (None: no image rendered)."""
+    (``flat_markers``: :func:`gelsim.markers.rest_markers`; None: no markers computed), its renderer (None: no
+    image rendered; a :class:`gelsim.optics.Renderer` for the numpy engine, a
+    :class:`gelsim.optics.torch_backend.BatchRenderer` for the torch engine) and which labels each frame gets
+    (``imprint_labels``: indentation, area, contact centroid and box; ``marker_labels``: the markers' centres)."""
     profile: SensorProfile
     fidelity: Fidelity
     flat_markers: Markers | None = None
     renderer: Any = None
+    imprint_labels: bool = False
+    marker_labels: bool = False
 
     @classmethod
     def make(cls, profile: SensorProfile, fidelity: Fidelity, *, sensor_seed: int = 0, markers: bool = True,
-             renderer=None) -> "FrameSetup":
+             renderer=None, imprint_labels: bool = False, marker_labels: bool = False) -> "FrameSetup":
         """The setup of ``profile``'s sensor whose printed markers are jittered by ``sensor_seed``; markers
         when ``markers`` and the profile has them."""
         flat = rest_markers(profile, seed=sensor_seed) if markers and profile.markers.enabled else None
-        return cls(profile, fidelity, flat, renderer)
+        return cls(profile, fidelity, flat, renderer, imprint_labels, marker_labels)
 
 
-class FrameParts(NamedTuple):
-    """What :func:`make_frame` made: the imprint (None when nothing pressed), the markers (None without
-    markers) and the ``uint8 (H, W, 3)`` RGB frame (None without a renderer)."""
+@dataclass(frozen=True)
+class FrameParts:
+    """One frame as :func:`make_frames` made it: the imprint (None when nothing pressed), the markers (None
+    without markers), the ``uint8 (H, W, 3)`` RGB frame (None without a renderer; a tensor row on the torch
+    engine's device), the frame's :class:`~gelsim.nuisance.sequence.FrameNuisance` (or None), its labels (the
+    setup's, :data:`gelsim.schema.LABELS` keys and dtypes; empty without) and its inputs to the optics (one
+    :class:`~gelsim.optics.composite.OpticsInput`, whoever renders it)."""
     imprint: Imprint | None
     markers: Markers | None
-    frame: np.ndarray | None
+    frame: Any
+    nuisance: Any = None
+    labels: Mapping[str, np.ndarray] = field(default_factory=dict)
+    optics: OpticsInput | None = None
 
 
-def render_depth(imprint: Imprint | None, nuisance=None) -> np.ndarray | None:
-    """The depth the optics render (float32 ``(H, W)`` mm or None): the imprint's, plus the nuisance's dents
-    (:class:`gelsim.nuisance.sequence.FrameNuisance`; the fibres of a hairy fabric) where there are any. The
-    imprint itself, and so the labels, never holds the dents."""
-    depth = None if imprint is None else imprint.depth_mm
-    dents = None if nuisance is None else nuisance.dents_mm
-    if dents is None:
-        return depth
-    return dents if depth is None else depth + dents
+@dataclass
+class FrameBatch:
+    """What :func:`make_frames` made: ``parts`` (one :class:`FrameParts` per request, in order), ``seconds`` (per
+    stage, by the engine's clock) and the engine's own batch objects (``imprints``, ``markers``, ``frames``: the
+    torch engine's tensors on its device, which :class:`gelsim.mujoco.batch.BatchGelSightSensor` hands out)."""
+    parts: list[FrameParts]
+    seconds: dict[str, float]
+    imprints: Any = None
+    markers: Any = None
+    frames: Any = None
+
+
+def make_frames(requests: Sequence[FrameRequest], setup: FrameSetup, engine=NUMPY) -> FrameBatch:
+    """The frames of ``requests`` (see the module docstring), their stages on ``engine`` (default the numpy
+    engine): imprint, nuisance, markers, labels, optics, each only when it has something to do."""
+    timer = StageTimer(engine.clock)
+    n = len(requests)
+    touches = [r.touch for r in requests]
+    imprints = engine.press(touches, setup)
+    if any(t is not None for t in touches):
+        timer.lap("imprint")
+    imprint = [engine.imprint(imprints, b) for b in range(n)]
+    nuisance = [None] * n
+    if any(r.nuisance is not None for r in requests):
+        nuisance = [None if r.nuisance is None else r.nuisance.frame(r.index, imprint[b], tilt_deg=r.tilt_deg)
+                    for b, r in enumerate(requests)]
+        timer.lap("nuisance")
+    markers = mk = None
+    if setup.flat_markers is not None:
+        markers = engine.displace(imprints, touches, setup)
+        mk = [engine.markers(markers, b) for b in range(n)]
+        timer.lap("markers")
+    labels = [frame_labels(setup, imprint[b], None if mk is None else mk[b]) for b in range(n)]
+    if setup.imprint_labels:
+        for b, where in enumerate(engine.locate(imprints)):
+            if where is not None:
+                labels[b]["contact_centroid_px"] = where[0].astype(np.float32)
+                labels[b]["contact_bbox_px"] = where[1].astype(np.float32)
+    if setup.imprint_labels or setup.marker_labels:
+        timer.lap("labels")
+    optics = [OpticsInput(engine.render_depth(imprint[b], None if nuisance[b] is None else nuisance[b].dents_mm),
+                          None if markers is None else engine.render_markers(markers, b),
+                          None if nuisance[b] is None else nuisance[b].gains, r.seed, r.noise)
+              for b, r in enumerate(requests)]
+    frames = None
+    if setup.renderer is not None:
+        frames = engine.render(optics, setup)
+        timer.lap("optics")
+    parts = [FrameParts(imprint[b], None if mk is None else mk[b], None if frames is None else frames[b], nuisance[b],
+                        labels[b], optics[b]) for b in range(n)]
+    return FrameBatch(parts, timer.take(), imprints, markers, frames)
+
+
+def frame_labels(setup: FrameSetup, imprint: Imprint | None, markers: Markers | None) -> dict[str, np.ndarray]:
+    """One frame's labels of ``setup``'s kinds (:data:`gelsim.schema.LABELS` order and dtypes): the imprint's
+    (zero and NaN without one; its contact centroid and box are the engine's to fill in) and the markers' (empty
+    without markers)."""
+    labels: dict[str, np.ndarray] = {}
+    if setup.imprint_labels:
+        depth, area = (0.0, 0.0) if imprint is None else (imprint.indentation_mm, imprint.contact_area_mm2)
+        labels.update(indentation_mm=np.float32(depth), contact_area_mm2=np.float32(area),
+                      contact_centroid_px=np.full(2, np.nan, np.float32), contact_bbox_px=np.full(4, np.nan, np.float32))
+    if setup.marker_labels:
+        none = np.zeros((0, 2), np.float32)
+        labels.update(markers_xy_px=none if markers is None else markers.xy_px.astype(np.float32, copy=False),
+                      markers_rest_px=none if markers is None else markers.rest_px.astype(np.float32, copy=False))
+    return labels
 
 
 def make_frame(touch: Touch | None, setup: FrameSetup, *, seed: int | np.random.Generator = 0, noise: bool = True,
-               timer: StageTimer | None = None, nuisance=None) -> FrameParts:
-    """One tactile frame: ``touch`` pressed into the gel, the markers it moves, the camera's image.
-
-    ``touch`` None: nothing presses (no imprint; the markers at rest; the flat gel). ``seed``: this
-    frame's camera noise (an int, or the sequence's :func:`noise_generator`, drawn from once per
-    rendered frame); ``noise``: False for a noiseless frame. ``timer``: gets the stages' times
-    (``imprint``, ``markers``, ``optics``), each only when the stage ran. ``nuisance``: this frame's
-    :class:`gelsim.nuisance.sequence.FrameNuisance` (fibre dents added to the rendered depth, camera gains),
-    or a function of the imprint (None before contact) returning one (its time goes to ``nuisance``), or
-    None (nothing: today's frame).
-    """
-    timer = timer if timer is not None else StageTimer()
-    prof, fid = setup.profile, setup.fidelity
-    imprint = None
-    if touch is not None:
-        imprint = press(touch.protrusion_mm, prof, fid, force_n=touch.force_n, depth_mm=touch.depth_mm,
-                        window=touch.window, warm=touch.warm, envelope_mm=touch.envelope_mm, **touch.properties)
-        timer.lap("imprint")
-    if callable(nuisance):
-        nuisance = nuisance(imprint)
-        timer.lap("nuisance")
-    markers = setup.flat_markers
-    if markers is not None:
-        if imprint is not None:
-            markers = displace(prof, fid, imprint, shear_mm=touch.shear_mm, twist_deg=touch.twist_deg,
-                               rest=markers.rest_px)
-        timer.lap("markers")
-    frame = None
-    if setup.renderer is not None:
-        frame = setup.renderer.render(render_depth(imprint, nuisance), markers, seed=seed, noise=noise,
-                                      gains=None if nuisance is None else nuisance.gains)
-        timer.lap("optics")
-    return FrameParts(imprint, markers, frame)
+               nuisance=None, index: int = 0, tilt_deg=(0.0, 0.0)) -> FrameParts:
+    """One frame (a batch of one on the numpy engine): ``touch`` pressed into the gel (None: nothing presses, the
+    flat gel), its markers, its labels (the setup's), its image (``seed``, ``noise``: its noise; ``nuisance``: its
+    sequence's :class:`~gelsim.nuisance.sequence.SequenceNuisance`, asked for frame ``index`` at ``tilt_deg``)."""
+    return make_frames([FrameRequest(touch, seed, noise, nuisance, index, tilt_deg)], setup).parts[0]
 
 
 @dataclass(frozen=True)
@@ -181,7 +247,10 @@ class FrameRecord:
     forces (the contact simulation's row: ``time_s`` ... ``twist_deg``), then the imprint's and the
     markers' labels when computed (``markers_rest_px``, the sequence's, in every frame). seconds: CPU
     seconds per stage spent on this frame since the previous record (the first record's include the
-    sequence's set-up: ``fabric``, ``physics``).
+    sequence's set-up: ``fabric``, ``physics``; on the torch engine its share of its batch's wall seconds).
+    nuisance: the frame's :class:`~gelsim.nuisance.sequence.FrameNuisance` (or None), as the pipeline asked
+    its sequence for it. optics: the frame's inputs to the optics in one object (the depth to render, the
+    markers, the gains, its noise seed): what a sink that renders reads (:class:`gelsim.sinks.DeviceFrames`).
     """
     index: int
     touch: Touch | None
@@ -191,21 +260,12 @@ class FrameRecord:
     labels: Mapping[str, np.ndarray]
     seconds: Mapping[str, float]
     nuisance: Any = None
+    optics: OpticsInput | None = None
 
     @property
     def depth_mm(self) -> np.ndarray | None:
         """The imprint's depth, float32 (H, W) mm, or None (the flat gel)."""
         return None if self.imprint is None else self.imprint.depth_mm
-
-    @property
-    def render_depth_mm(self) -> np.ndarray | None:
-        """The depth the optics render: :func:`render_depth` of the imprint and the nuisance."""
-        return render_depth(self.imprint, self.nuisance)
-
-    @property
-    def gains(self) -> np.ndarray | None:
-        """The camera's per-channel gains (3,) of this frame, or None (all 1)."""
-        return None if self.nuisance is None else self.nuisance.gains
 
 
 def sequence_labels(rows: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:

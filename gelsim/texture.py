@@ -174,8 +174,8 @@ def texture_budget(fabric, force_n: float, profile, fidelity, *, seed: int = 0, 
     import time
 
     from .fabrics import heightfield
-    from .gel import press
     from .optics import Renderer
+    from .stream import FrameRequest, FrameSetup, Touch, make_frames
 
     if not (math.isfinite(force_n) and force_n > 0):
         raise GelsimError(f"force {force_n} N must be a positive number; give e.g. --force-n 3")
@@ -186,9 +186,18 @@ def texture_budget(fabric, force_n: float, profile, fidelity, *, seed: int = 0, 
     prot = heightfield(fabric, x0_mm=-(w - 1) / 2 * mm, y0_mm=-(h - 1) / 2 * mm, width_px=w, height_px=h,
                        mm_per_px=mm, seed=seed, rotation_deg=fabric.orientation_deg)
     times["fabric"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    im = press(prot, profile, fidelity, force_n=force_n, **press_properties(fabric))
-    times["imprint"] = time.perf_counter() - t0
+    # The press (and, for ``frame``, the frame as the dataset holds it: markers, noise) through the frame pipeline:
+    # one touch, pressed once, its frame rendered with each of the clip's noise draws.
+    touch = Touch(prot, force_n=force_n, properties=press_properties(fabric))
+    ren = renderer or Renderer(profile, "fast", seed=0)
+    if frame:
+        shots = np.random.default_rng(seed + 1)
+        setup = FrameSetup.make(profile, fidelity, sensor_seed=0, renderer=ren)
+        made = make_frames([FrameRequest(touch, shots)] * (CODEC_FRAMES if codec else 1), setup)
+    else:
+        made = make_frames([FrameRequest(touch)], FrameSetup(profile, fidelity))
+    im = made.parts[0].imprint
+    times["imprint"] = made.seconds["imprint"]
     band = band_for(fabric, min(profile.field_mm))
     _, coarse = pitches_mm(fabric)
     region = contact_region(im.contact_mask, coarse / mm, RIM_SIGMAS * band.sigmas_px(mm)[1])
@@ -197,7 +206,6 @@ def texture_budget(fabric, force_n: float, profile, fidelity, *, seed: int = 0, 
     gy, gx = np.gradient(bandpass(im.depth_mm, band, mm), mm)
     slope = np.hypot(gx, gy)[region] if region.any() else np.array([np.nan])
     t0 = time.perf_counter()
-    ren = renderer or Renderer(profile, "fast", seed=0)
     clean, macro = texture_frames(ren, im.depth_mm, band, mm)
     flat = ren.render(None, None, noise=False)
     rng = np.random.default_rng(seed)
@@ -231,11 +239,7 @@ def texture_budget(fabric, force_n: float, profile, fidelity, *, seed: int = 0, 
     out.timings_s = {k: round(v, 3) for k, v in times.items()}
     if not frame:
         return out
-    from .markers import displace
-
-    mk = displace(profile, fidelity, im, rest=None) if profile.markers.enabled else None
-    rng = np.random.default_rng(seed + 1)
-    shots = [ren.render(im.depth_mm, mk, seed=rng) for _ in range(CODEC_FRAMES if codec else 1)]
+    shots = [p.frame for p in made.parts]
     img = _codec(shots, profile.image.fps_hz)[CODEC_FRAMES // 2] if codec else shots[0]
     return out, img
 

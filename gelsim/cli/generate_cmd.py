@@ -60,7 +60,7 @@ def register(sub) -> None:
     p.add_argument("--stages", choices=["optics", "all"],
                    help="with --backend torch: what runs on --device. optics: the camera image only; the imprint, "
                         "markers and labels come from the numpy path, byte for byte. all: the whole frame after "
-                        "the physics (imprint, contact labels, markers, image; gelsim.device), a fabric's "
+                        "the physics (imprint, contact labels, markers, nuisance, image: the frame pipeline's torch engine), a fabric's "
                         "sequences in step, the physics on the CPU; labels within the stated tolerance of the "
                         "numpy path's (docs/device.md), the same bytes on the same device. The manifest records "
                         "the backend, the stages and the device [default: optics]")

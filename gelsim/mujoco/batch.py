@@ -2,11 +2,10 @@
 pads of one scene) at once on any torch device.
 
 Per call, for every pad, the host does what :class:`gelsim.mujoco.GelSightSensor` does with MuJoCo (its contact
-forces, the ray casts of what lies in front of the pad, the protrusion map, the stick/slip state), then the device
-does the rest for all pads together: the imprint (:func:`gelsim.gel.twoscale_torch.press_batch`, each pad
-warm-started from its own previous frame), the markers (:func:`gelsim.markers_torch.displace_batch`) and the
-camera image (the torch optics, :class:`gelsim.device.frame.DeviceRenderer`). A pad without a contact force gets
-the flat gel (with noise, when on), as the single sensor does.
+forces, the ray casts of what lies in front of the pad, the protrusion map, the stick/slip state), then the frame
+pipeline (:func:`gelsim.stream.make_frames` on the torch engine, :class:`gelsim.engines.TorchEngine`) does the rest
+for all pads together: the imprint (each pad warm-started from its own previous frame), the markers and the camera
+image. A pad without a contact force gets the flat gel (with noise, when on), as the single sensor does.
 
 The pads of one batch are one sensor unit: one profile, resolution, fidelity and ``seed`` (the background's
 illumination, the markers' print and the noise stream's seed, as :class:`GelSightSensor`'s ``seed``). Its frames
@@ -20,14 +19,15 @@ machinery (its private ray scene is compiled once); each pad keeps its own conta
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
 
+from ..engines import TorchEngine
 from ..errors import GelsimError
 from ..fidelity import Fidelity, get_fidelity
+from ..stream import FrameRequest, FrameSetup, Touch, make_frames
 from .sensor import GelSightSensor
 from .stickslip import StickSlip
 
@@ -37,7 +37,7 @@ class _PadState:
     """One pad's contact history (GelSightSensor's, kept apart so that pads can share a sensor's machinery)."""
     stick_slip: StickSlip = field(default_factory=StickSlip)
     frame: int = 0
-    warm: object = None                  # the device imprint's state of the previous frame
+    warm: object = None                  # the previous frame's imprint (the torch engine's), or None
 
 
 @dataclass
@@ -113,7 +113,9 @@ class BatchGelSightSensor:
             raise GelsimError("the pads of one batch share one profile and resolution; make one batch per sensor kind")
         _check_torch_optics(self.profile)
         self.renderer = BatchRenderer(Renderer(self.profile, "torch", supersample=fid.supersample, seed=self.seed,
-                                                device=self.device))
+                                               device=self.device))
+        self.setup = FrameSetup.make(self.profile, fid, sensor_seed=self.seed, renderer=self.renderer)
+        self.engine = TorchEngine(self.device, sync=True)
         self._rest = first.rest_px
         self.timings_ms: dict[str, float] = {}
 
@@ -177,66 +179,36 @@ class BatchGelSightSensor:
         """Every pad's tactile frame of its scene's current state."""
         import torch
 
-        from ..gel.twoscale_torch import press_batch
-        from ..markers_torch import displace_batch
-
-        clock = time.perf_counter
-        t0 = t = clock()
-        times: dict[str, float] = {}
-
-        def lap(stage):
-            nonlocal t
-            if self.device.type == "cuda":
-                torch.cuda.synchronize(self.device)
-            now = clock()
-            times[stage] = (now - t) * 1e3
-            t = now
-
+        clock = self.engine.clock
+        t0 = clock()
         n = len(self._pads)
-        h, w = self.profile.shape
         normal = np.zeros(n)
         tang = np.zeros((n, 2))
         shear = np.zeros((n, 2))
         twist = np.zeros(n)
         slipping = np.zeros(n, bool)
-        prots, live, seeds = [], [], []
+        requests = []
         for i, (host, data, st) in enumerate(self._pads):
-            seeds.append(np.random.default_rng([self.seed, st.frame]))
+            rng = np.random.default_rng([self.seed, st.frame])
             st.frame += 1
             f, tg, prot, sh, tw, sl = self._host_step(host, data, st)
             normal[i], tang[i], shear[i], twist[i], slipping[i] = f, tg, sh, tw, sl
-            if prot is not None:
-                live.append(i)
-                prots.append(prot)
-        lap("host")
-        dev = self.device
-        depth = torch.zeros((n, h, w), device=dev)
-        mask = torch.zeros((n, h, w), dtype=torch.bool, device=dev)
-        if live:
-            ib = press_batch(torch.as_tensor(np.stack(prots), device=dev), self.profile, self.fidelity, normal[live],
-                             warm=[self._pads[i][2].warm for i in live])
-            lt = torch.as_tensor(live, device=dev)
-            depth[lt] = ib.depth_mm
-            mask[lt] = ib.contact_mask
-            for j, i in enumerate(live):
-                self._pads[i][2].warm = ib.states[j]
-        lap("imprint")
-        corners = None
-        if self.profile.markers.enabled:
-            xy, corners = displace_batch(self.profile, self.fidelity, depth, mask, shear_mm=shear, twist_deg=twist,
-                                         rest=self._rest)
-        else:
-            xy = torch.zeros((n, 0, 2), device=dev)
-        lap("markers")
-        offsets = [self.renderer.draw(s, self.noise) for s in seeds]
-        rgb = self.renderer.frames(depth, corners, offsets)
-        lap("render")
-        self.timings_ms = {**times, "total": (clock() - t0) * 1e3}
+            touch = None if prot is None else Touch(prot, force_n=f, shear_mm=tuple(sh), twist_deg=tw, warm=st.warm)
+            requests.append(FrameRequest(touch, rng, self.noise))
+        host_ms = (clock() - t0) * 1e3
+        made = make_frames(requests, self.setup, self.engine)
+        live = made.imprints.pressed
+        for i, (_, _, st) in enumerate(self._pads):
+            st.warm = made.parts[i].imprint
+        xy = made.markers.xy if made.markers is not None else torch.zeros((n, 0, 2), device=self.device)
+        # (the optics stage has always been "render" here)
+        self.timings_ms = {"host": host_ms, **{("render" if k == "optics" else k): v * 1e3
+                                                for k, v in made.seconds.items()}, "total": (clock() - t0) * 1e3}
         in_contact = np.zeros(n, bool)
         in_contact[live] = True
         times_s = np.array([float(data.time) for _, data, _ in self._pads])
-        return BatchFrames(rgb, depth, mask, xy, self._rest.copy(), normal, tang, shear, twist, in_contact, slipping,
-                           times_s)
+        return BatchFrames(made.frames, made.imprints.depth_mm, made.imprints.contact_mask, xy, self._rest.copy(),
+                           normal, tang, shear, twist, in_contact, slipping, times_s)
 
     def close(self) -> None:
         """Free the single sensors' resources."""

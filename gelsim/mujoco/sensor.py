@@ -18,8 +18,8 @@ columns along the geom's +x, rows along its +y (``docs/mujoco.md``). Per frame:
    the gel slips and stays at the limit.
 5. **Markers** (:func:`gelsim.markers.displace`) and the **camera image** (:class:`gelsim.optics.Renderer`).
 
-Steps 3 and 5 are the pipeline's one-frame function (:func:`gelsim.stream.make_frame`), the one that
-``gelsim render`` and every dataset frame run too.
+Steps 3 and 5 are the frame pipeline (:func:`gelsim.stream.make_frames`, a batch of one on the numpy engine), the
+one that ``gelsim render`` and every dataset frame run too.
 
 Frames without a contact force on the pad skip steps 2-4: they are the flat gel (exactly
 :meth:`GelSightSensor.background` without noise). MuJoCo runs in SI units; everything the sensor
@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import functools
 import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,7 +43,7 @@ from ..optics import Renderer
 from ..runtime import ThreadLimit
 from ..scene import PHYSICS_MM_PER_PX, HeightPatch
 from ..sensor import SensorProfile, load_profile
-from ..stream import FrameSetup, StageTimer, Touch, make_frame
+from ..stream import FrameRequest, FrameSetup, StageTimer, Touch, make_frame, make_frames
 from .rays import MM, PadRays
 from .stickslip import GelSprings, StickSlip
 
@@ -342,10 +341,12 @@ class GelSightSensor:
             shear, twist, slipping = self.shear_twist(self.stick_slip, body, normal, tang, torque, mu)
             touch = Touch(prot, force_n=normal, shear_mm=tuple(shear), twist_deg=twist, warm=self._prev)
             timer.lap("geometry")
-        imprint, markers, rgb = make_frame(touch, self._setup, seed=rng, noise=self.noise, timer=timer)
+        timer.restart()
+        made = make_frames([FrameRequest(touch, rng, self.noise)], self._setup)
+        imprint, markers, rgb = made.parts[0].imprint, made.parts[0].markers, made.parts[0].frame
         self._prev = imprint
         # (the optics stage has always been "render" here)
-        self.timings_ms = {("render" if k == "optics" else k): v * 1e3 for k, v in timer.take().items()}
+        self.timings_ms = {("render" if k == "optics" else k): v * 1e3 for k, v in {**timer.take(), **made.seconds}.items()}
         self.timings_ms["total"] = (timer.clock() - t0) * 1e3
         xy = self.rest_px.copy() if markers is None or imprint is None else markers.xy_px
         if imprint is None:

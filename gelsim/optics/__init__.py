@@ -159,7 +159,7 @@ class Renderer:
                 d = st.draw(rng, inputs.noise)
                 if d is not None:
                     draws[st.name] = d
-        inp = FrameInput(depth, inputs.markers, self._fine_shape, inputs.gains, draws)
+        inp = FrameInput(depth, inputs.markers, self._fine_shape, inputs.gains, draws, inputs)
         active = []
         for st in stages:
             state = st.prepare(inp)

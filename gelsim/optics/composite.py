@@ -128,7 +128,7 @@ class OpticsInput:
     """One frame's inputs to the optics, in one object from whoever makes the frame to the renderer.
 
     ``depth_mm``: the depth the optics render, float32 ``(H, W)`` mm >= 0 (the imprint plus the nuisance's
-    dents: :func:`gelsim.stream.render_depth`), or None for the flat gel (a tensor on a device for the torch
+    dents: the engine's ``render_depth``, :mod:`gelsim.engines`), or None for the flat gel (a tensor on a device for the torch
     batch renderer's :meth:`~gelsim.optics.torch_backend.BatchRenderer.frames`); ``markers``: an object with
     ``.corners_px`` float32 ``(N, 4, 2)`` px, such an array, or None; ``gains``: the camera's per-channel gains
     ``(3,)`` (:class:`CameraGains`) or None (all 1); ``seed``: where the frame's random draws come from (an
@@ -146,12 +146,14 @@ class FrameInput:
     resolution (float32 mm, validated) or None; ``markers`` as :class:`OpticsInput`'s (output pixels);
     ``shape`` the fine frame's ``(sH, sW, 3)``; ``gains`` the camera's per-channel gains ``(3,)`` or None (all
     1); ``draws`` the frame's random draws by stage name (:meth:`Stage.draw`'s; empty for an unquantised
-    frame, which draws nothing)."""
+    frame, which draws nothing); ``inputs`` the frame's :class:`OpticsInput` itself (a stage reading an input
+    added to it finds it there: the renderers pass it on unchanged)."""
     depth: np.ndarray | None
     markers: object
     shape: tuple[int, int, int]
     gains: np.ndarray | None = None
     draws: Mapping[str, object] = field(default_factory=dict)
+    inputs: OpticsInput | None = None
 
 
 @dataclass
@@ -159,11 +161,13 @@ class BatchInput:
     """``B`` frames' inputs as the torch stages read them: ``depth`` ``(B, sH, sW)`` mm at the fine resolution
     and ``corners`` ``(B, N, 4, 2)`` output pixels (None without markers), tensors on the device; ``gains``
     each frame's camera gains ``(3,)`` or None, a list (None: no frame has any); ``draws`` each frame's random
-    draws by stage name (a list of mappings or None; None: nothing drawn)."""
+    draws by stage name (a list of mappings or None; None: nothing drawn); ``inputs`` the frames'
+    :class:`OpticsInput` objects where the caller has them (None: not given)."""
     depth: object
     corners: object
     gains: list | None = None
     draws: list | None = None
+    inputs: list | None = None
 
     def draws_of(self, stage: "Stage", n: int) -> list:
         """``stage``'s draw of each of the ``n`` frames (None where it drew nothing)."""

@@ -260,10 +260,11 @@ class BatchRenderer:
             t = t.pin_memory()
         return t.to(self.device, non_blocking=self._pinned)
 
-    def compose(self, depth, corners, draws: list | None = None, gains: list | None = None):
+    def compose(self, depth, corners, draws: list | None = None, gains: list | None = None, inputs: list | None = None):
         """The frames before the readout, float32 ``(B, 3, H, W)`` DN on the device, from :meth:`stage`'s
         ``depth`` and ``corners`` (``draws``: each frame's :meth:`draw`, for the stages before the readout;
-        ``gains``: each frame's camera gains (3,) or None, as :meth:`Renderer.render` takes them)."""
+        ``gains``: each frame's camera gains (3,) or None, as :meth:`Renderer.render` takes them; ``inputs``: the
+        frames' :class:`~gelsim.optics.composite.OpticsInput` objects, passed on to the stages)."""
         d = self._to_device(depth)
         s = self.s
         if s > 1:
@@ -273,7 +274,7 @@ class BatchRenderer:
             frame = frame + part
         if gains is not None and len(gains) != len(d):
             raise GelsimError(f"{len(gains)} frames' gains for a batch of {len(d)}; give one (or None) per frame")
-        batch = BatchInput(d, None if corners is None else self._to_device(corners), gains, draws)
+        batch = BatchInput(d, None if corners is None else self._to_device(corners), gains, draws, inputs)
         for st in self.stages[:self._final]:
             frame = st.apply_torch(frame, batch)
         return frame
@@ -284,12 +285,12 @@ class BatchRenderer:
         device."""
         return self.stages[self._final].apply_torch(frame, BatchInput(None, None, None, offsets))
 
-    def frames(self, depth, corners, draws: list, gains: list | None = None):
+    def frames(self, depth, corners, draws: list, gains: list | None = None, inputs: list | None = None):
         """uint8 ``(B, H, W, 3)`` RGB on the device from depth float32 ``(B, H, W)`` mm and corners float32
         ``(B, N, 4, 2)`` px (or None) already on a device (:meth:`stage`'s form), each frame's :meth:`draw` and
-        camera gains (or None)."""
+        camera gains (or None) and its :class:`~gelsim.optics.composite.OpticsInput` (or None)."""
         corners = corners if self.profile.markers.enabled else None
-        return self.quantise(self.compose(depth, corners, draws, gains), draws)
+        return self.quantise(self.compose(depth, corners, draws, gains, inputs), draws)
 
     def render_inputs(self, inputs: list) -> np.ndarray:
         """uint8 ``(B, H, W, 3)`` RGB of frames given as :class:`~gelsim.optics.composite.OpticsInput` objects
@@ -298,7 +299,7 @@ class BatchRenderer:
         depth, corners = self.stage([i.depth_mm for i in inputs], [i.markers for i in inputs])
         gains = [i.gains for i in inputs]
         gains = None if all(g is None for g in gains) else gains
-        return self.quantise(self.compose(depth, corners, draws, gains), draws).cpu().numpy()
+        return self.quantise(self.compose(depth, corners, draws, gains, list(inputs)), draws).cpu().numpy()
 
     def render(self, depths: list, markers: list | None = None, seeds: list | None = None, *,
                noise: bool = True, gains: list | None = None) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""``gelsim generate --backend torch --stages all``: the whole frame on the device (gelsim.device), through the CLI.
+"""``gelsim generate --backend torch --stages all``: the whole frame on the torch engine (sequences in step), through
+the CLI.
 
 A tiny dataset (CPU torch) that ``gelsim verify`` accepts, whose labels are the numpy path's within the device
 path's stated tolerances, whose manifest says the backend, stages and device, and whose bytes are the same for any
@@ -95,6 +96,22 @@ def _assert_labels_agree(numpy_root: Path, device_root: Path) -> None:
         assert np.array_equal(a["markers_rest_px"], b["markers_rest_px"])
         assert np.abs(a["markers_xy_px"] - b["markers_xy_px"]).max() <= TOL_PX
     assert touched_frames >= 10                                      # the comparison saw contacts
+
+
+def test_the_nuisance_runs_on_the_device_and_leaves_the_labels_alone(made, capsys):
+    """``--stages all --nuisance handheld``: the fibres' dents and the camera's gains on the torch engine, made on
+    the host per sequence (the same draws as the numpy path's); the dataset verifies, its labels are the same bytes
+    as without the nuisance, its frames are not, and any --batch gives the same bytes."""
+    hand = made / "hand"
+    assert _gen(hand, *DEVICE, "--nuisance", "handheld", "--batch", "3") == 0
+    capsys.readouterr()
+    assert main(["verify", str(hand)]) == 0 and "OK" in capsys.readouterr().out
+    a, b = load_manifest(made / "b1"), load_manifest(hand)
+    assert b["options"]["nuisance"] == "handheld" and b["render"]["stages"] == "all"
+    assert [s["sha256"]["labels"] for s in a["sequences"]] == [s["sha256"]["labels"] for s in b["sequences"]]
+    assert all(x["sha256"]["video"] != y["sha256"]["video"] for x, y in zip(a["sequences"], b["sequences"]))
+    assert _gen(made / "hand8", *DEVICE, "--nuisance", "handheld", "--batch", "8") == 0
+    assert load_manifest(made / "hand8")["sequences"] == b["sequences"]
 
 
 def test_an_interrupted_run_resumes_to_the_same_bytes(made, tmp_path):

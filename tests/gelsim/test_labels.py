@@ -5,12 +5,40 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
+from gelsim.labels import contact_location
 
-from gelsim.labels import contact_location, contact_location_torch  # noqa: E402
+
+def test_contact_location_of_a_known_mask():
+    mask = np.zeros((20, 30), bool)
+    mask[4:7, 10:20] = True   # rows 4-6, columns 10-19
+    c, b = contact_location(mask)
+    np.testing.assert_allclose(c, [14.5, 5.0])
+    np.testing.assert_allclose(b, [9.5, 3.5, 19.5, 6.5])
+    # the box's area (px^2) is the mask's pixel count for a rectangle
+    assert (b[2] - b[0]) * (b[3] - b[1]) == pytest.approx(mask.sum())
+
+
+def test_contact_location_single_pixel_and_empty():
+    mask = np.zeros((5, 5), bool)
+    mask[2, 3] = True
+    c, b = contact_location(mask)
+    np.testing.assert_allclose(c, [3.0, 2.0])
+    np.testing.assert_allclose(b, [2.5, 1.5, 3.5, 2.5])
+    c, b = contact_location(np.zeros((5, 5), bool))
+    assert np.isnan(c).all() and np.isnan(b).all()
+
+
+def test_contact_location_of_a_strided_mask():
+    big = np.zeros((10, 10), bool)
+    big[2, 4] = True
+    c, _ = contact_location(big[::2, ::2])  # not contiguous
+    np.testing.assert_allclose(c, [2.0, 1.0])
 
 
 def test_contact_location_numpy_and_torch_kernels_agree():
+    torch = pytest.importorskip("torch")
+    from gelsim.labels import contact_location_torch
+
     rng = np.random.default_rng(0)
     masks = rng.random((3, 20, 30)) > 0.7
     masks[1] = False

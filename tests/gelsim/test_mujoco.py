@@ -225,13 +225,13 @@ def test_render_runs_on_one_thread_and_gives_the_callers_threading_back(pressed_
     m, d = pressed_ball
     s = GelSightSensor(m, d, "pad", profile="vitac", resolution=(160, 120), noise=False)
     seen = []
-    inner = s.renderer.render
+    inner = s.renderer.render_input
 
     def spy(*a, **k):
         seen.append(([i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"], cv2.getNumThreads()))
         return inner(*a, **k)
 
-    s.renderer.render = spy
+    s.renderer.render_input = spy
     old_cv = cv2.getNumThreads()
     with threadpool_limits(limits=2, user_api="blas"):
         cv2.setNumThreads(2)
@@ -245,7 +245,7 @@ def test_render_runs_on_one_thread_and_gives_the_callers_threading_back(pressed_
     assert set(after[0]) == {2} and after[1] == 2                       # the caller's settings, given back
     unlimited = GelSightSensor(m, d, "pad", profile="vitac", resolution=(160, 120), noise=False, threads=None,
                                warmup=False)
-    unlimited.renderer.render = spy
+    unlimited.renderer.render_input = spy
     cv2.setNumThreads(2)
     try:
         unlimited.render()

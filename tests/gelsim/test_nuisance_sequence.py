@@ -21,7 +21,7 @@ from gelsim.optics.composite import check_gains
 from gelsim.optics.ops.readout import to_uint8
 from gelsim.sequence import SequenceOptions, render_sequence
 from gelsim.sinks import DeviceFrames, KeepFrames, drain
-from gelsim.stream import noise_generator, sequence_labels
+from gelsim.stream import sequence_labels
 
 HAIRY = 73            # mohair plush, catalog hairiness 0.5
 MODEL = load_nuisance()
@@ -119,7 +119,7 @@ def test_device_frames_render_the_nuisance_as_the_sequence_would(small):
     out = {}
     for batch in (1, 5):
         frames = KeepFrames()
-        with DeviceFrames(BatchRenderer(Renderer(small, "torch")), batch, noise_generator(3), [frames]) as dev:
+        with DeviceFrames(BatchRenderer(Renderer(small, "torch")), batch, [frames]) as dev:
             labels, _ = drain(render_sequence(load_catalog()[HAIRY], motion, small, get_fidelity("fast"), seed=3,
                                               options=SequenceOptions(outputs={"imprint", "markers"},
                                                                       nuisance=MODEL.level("handheld"))), [dev])
@@ -152,7 +152,3 @@ def test_generate_nuisance_levels_keep_the_labels_and_any_worker_count_the_bytes
     with pytest.raises(GelsimError, match="unknown nuisance level 'loud'"):
         generate(GenerateConfig(**base, nuisance="loud"), tmp_path / "bad", workers=1, previews=False)
     assert not (tmp_path / "bad").exists()
-    with pytest.raises(GelsimError, match="not in --stages all"):
-        generate(GenerateConfig(**base, nuisance="camera", backend="torch", stages="all"), tmp_path / "bad2",
-                 workers=1, previews=False)
-    assert not (tmp_path / "bad2").exists()

@@ -8,11 +8,11 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from gelsim.device.frame import prepare_sequence  # noqa: E402
 from gelsim.fabrics import load_catalog  # noqa: E402
 from gelsim.fidelity import get_fidelity  # noqa: E402
 from gelsim.motion import sample_motion  # noqa: E402
 from gelsim.scene_torch import SAMPLE_TOL_MM, PatchBank, sample_patches  # noqa: E402
+from gelsim.sequence import SequenceRun  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
@@ -28,7 +28,7 @@ def setup():
     cat = load_catalog()
     specs = [(cat[1], sample_motion("twist", 5, frames=(7, 7), precontact=(2, 2)), 5),
              (cat[64], sample_motion("slip", 6, frames=(8, 8), precontact=(1, 1)), 6)]
-    prep = [prepare_sequence(o, m, prof, fid, seed=s) for o, m, s in specs]
+    prep = [SequenceRun(o, m, prof, fid, seed=s) for o, m, s in specs]
     return prof, fid, specs, prep
 
 

@@ -1,42 +1,14 @@
-"""Contact location labels of gelsim.sequence: centroid and bounding box of the contact mask."""
+"""Contact location labels of a sequence (gelsim.sequence): centroid and bounding box of the contact mask per frame."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from gelsim.fabrics import load_catalog
 from gelsim.fidelity import get_fidelity
 from gelsim.motion import sample_motion
 from gelsim.sensor import load_profile
-from gelsim.sequence import SequenceOptions, contact_location, render_sequence
+from gelsim.sequence import SequenceOptions, render_sequence
 from gelsim.sinks import drain
-
-
-def test_contact_location_of_a_known_mask():
-    mask = np.zeros((20, 30), bool)
-    mask[4:7, 10:20] = True   # rows 4-6, columns 10-19
-    c, b = contact_location(mask)
-    np.testing.assert_allclose(c, [14.5, 5.0])
-    np.testing.assert_allclose(b, [9.5, 3.5, 19.5, 6.5])
-    # the box's area (px^2) is the mask's pixel count for a rectangle
-    assert (b[2] - b[0]) * (b[3] - b[1]) == pytest.approx(mask.sum())
-
-
-def test_contact_location_single_pixel_and_empty():
-    mask = np.zeros((5, 5), bool)
-    mask[2, 3] = True
-    c, b = contact_location(mask)
-    np.testing.assert_allclose(c, [3.0, 2.0])
-    np.testing.assert_allclose(b, [2.5, 1.5, 3.5, 2.5])
-    c, b = contact_location(np.zeros((5, 5), bool))
-    assert np.isnan(c).all() and np.isnan(b).all()
-
-
-def test_contact_location_of_a_strided_mask():
-    big = np.zeros((10, 10), bool)
-    big[2, 4] = True
-    c, _ = contact_location(big[::2, ::2])  # not contiguous
-    np.testing.assert_allclose(c, [2.0, 1.0])
 
 
 def test_sequence_labels_locate_the_contact():

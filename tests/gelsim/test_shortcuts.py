@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from gelsim import sequence, stream
+from gelsim import engines, sequence
 from gelsim.contact import simulate
 from gelsim.errors import GelsimError
 from gelsim.fabrics import load_catalog
@@ -67,7 +67,7 @@ def test_shortcuts_match_full_computation(setup, action):
 
 def test_precontact_frames_skip_imprint_and_markers(setup, monkeypatch):
     calls = {"press": 0, "displace": 0}
-    real_press, real_displace = stream.press, stream.displace
+    real_press, real_displace = engines.press, engines.displace
 
     def counting_press(*a, **k):
         calls["press"] += 1
@@ -77,8 +77,8 @@ def test_precontact_frames_skip_imprint_and_markers(setup, monkeypatch):
         calls["displace"] += 1
         return real_displace(*a, **k)
 
-    monkeypatch.setattr(stream, "press", counting_press)
-    monkeypatch.setattr(stream, "displace", counting_displace)
+    monkeypatch.setattr(engines, "press", counting_press)
+    monkeypatch.setattr(engines, "displace", counting_displace)
     _, out = run(setup)
     touching = int(np.count_nonzero(out.labels["in_contact"] & (out.labels["normal_force_n"] > 0)))
     assert 0 < touching < T
@@ -90,13 +90,13 @@ def test_precontact_frames_skip_imprint_and_markers(setup, monkeypatch):
 
 def test_press_drops_negligible_twist_only(setup, monkeypatch):
     seen = []
-    real = stream.displace
+    real = engines.displace
 
     def spy(*a, **k):
         seen.append((k["shear_mm"], k["twist_deg"]))
         return real(*a, **k)
 
-    monkeypatch.setattr(stream, "displace", spy)
+    monkeypatch.setattr(engines, "displace", spy)
     profile, *_, contacts = setup
     run(setup, "press")
     c = contacts["press"]
@@ -125,8 +125,8 @@ def test_negligible_thresholds():
 
 def test_twist_sequence_keeps_its_twist(setup, monkeypatch):
     seen = []
-    real = stream.displace
-    monkeypatch.setattr(stream, "displace", lambda *a, **k: seen.append(k["twist_deg"]) or real(*a, **k))
+    real = engines.displace
+    monkeypatch.setattr(engines, "displace", lambda *a, **k: seen.append(k["twist_deg"]) or real(*a, **k))
     run(setup, "twist")
     assert max(abs(t) for t in seen) > 0.1
 
@@ -134,7 +134,7 @@ def test_twist_sequence_keeps_its_twist(setup, monkeypatch):
 def test_outputs_nobody_asked_for_are_not_computed(setup, monkeypatch):
     _, full = run(setup)
     called = []
-    monkeypatch.setattr(stream, "press", lambda *a, **k: called.append("press"))
+    monkeypatch.setattr(engines, "press", lambda *a, **k: called.append("press"))
     monkeypatch.setattr(sequence, "Renderer", lambda *a, **k: called.append("renderer"))
     frames, out = run(setup, outputs=())
     assert frames == [None] * T and called == []
@@ -145,7 +145,7 @@ def test_outputs_nobody_asked_for_are_not_computed(setup, monkeypatch):
 
 def test_imprint_only_output(setup, monkeypatch):
     _, full = run(setup)
-    monkeypatch.setattr(stream, "displace", lambda *a, **k: pytest.fail("markers computed"))
+    monkeypatch.setattr(engines, "displace", lambda *a, **k: pytest.fail("markers computed"))
     frames, out = run(setup, outputs=("imprint",))
     assert all(f is None for f in frames)
     np.testing.assert_array_equal(out.labels["indentation_mm"], full.labels["indentation_mm"])

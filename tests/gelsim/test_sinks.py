@@ -9,7 +9,7 @@ from gelsim.fabrics import load_catalog
 from gelsim.fidelity import get_fidelity
 from gelsim.gel import Imprint
 from gelsim.motion import sample_motion
-from gelsim.optics import Renderer
+from gelsim.optics import OpticsInput, Renderer
 from gelsim.sequence import SequenceOptions, render_sequence
 from gelsim.sinks import DeviceFrames, ImprintCapture, KeepFrames, VideoSink, drain
 from gelsim.stream import FrameRecord, noise_generator, sequence_labels
@@ -23,9 +23,9 @@ def _dent(profile, depth_mm: float) -> np.ndarray:
     return np.clip(depth_mm * (1 - r2), 0, None).astype(np.float32)
 
 
-def _record(i: int, depth: np.ndarray | None) -> FrameRecord:
+def _record(i: int, depth: np.ndarray | None, seed=0) -> FrameRecord:
     imprint = None if depth is None else Imprint(depth, depth > 0, float(depth.max()), 1.0, 1.0, False)
-    return FrameRecord(i, None, imprint, None, None, {}, {})
+    return FrameRecord(i, None, imprint, None, None, {}, {}, optics=OpticsInput(depth, seed=seed))
 
 
 @pytest.fixture(scope="module")
@@ -76,9 +76,9 @@ def test_device_frames_same_frames_in_order_for_any_batch(vitac320):
     out = {}
     for batch in (1, 3, 8):
         frames, rng = KeepFrames(), noise_generator(9)
-        with DeviceFrames(r, batch, rng, [frames]) as dev:
+        with DeviceFrames(r, batch, [frames]) as dev:
             for i, d in enumerate(depths):
-                dev.write(_record(i, d))
+                dev.write(_record(i, d, rng))
         out[batch] = [f.tobytes() for f in frames.frames]
         assert dev.seconds["optics"] > 0
         # the noise was drawn from the sequence's generator as the numpy renderer draws it
@@ -105,11 +105,11 @@ def test_device_frames_reraises_the_writers_error(vitac320):
             pass
 
     with pytest.raises(OSError, match="disk full"):
-        with DeviceFrames(r, 2, noise_generator(0), [Full()]) as dev:
+        with DeviceFrames(r, 2, [Full()]) as dev:
             for i in range(5):
                 dev.write(_record(i, None))
     with pytest.raises(GelsimError, match="--batch"):
-        DeviceFrames(r, 0, noise_generator(0), [Full()])
+        DeviceFrames(r, 0, [Full()])
 
 
 def test_device_frames_render_what_the_sequence_would(small_run):
@@ -120,7 +120,7 @@ def test_device_frames_render_what_the_sequence_would(small_run):
     pytest.importorskip("torch")
     profile, motion, fid, records = small_run
     frames = KeepFrames()
-    with DeviceFrames(BatchRenderer(Renderer(profile, "torch")), 4, noise_generator(3), [frames]) as dev:
+    with DeviceFrames(BatchRenderer(Renderer(profile, "torch")), 4, [frames]) as dev:
         labels, _ = drain(render_sequence(load_catalog()[57], motion, profile, fid, seed=3,
                                           options=SequenceOptions(outputs={"imprint", "markers"})), [dev])
     fast = sequence_labels([r.labels for r in records])

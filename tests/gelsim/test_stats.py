@@ -15,7 +15,7 @@ from gelsim.fidelity import get_fidelity
 from gelsim.gel import press
 from gelsim.markers import displace, marker_grid
 from gelsim.sensor import load_profile
-from gelsim.sequence import contact_location
+from gelsim.labels import contact_location
 from gelsim.stats import (AGREEMENT_TOLERANCE, MIN_REGION_MARKERS, STAM_CPU_CROP, check_crop, contact_region,
                           crop_box_px, fit_marker_motion, key_frames, label_agreement, sequence_stats)
 
