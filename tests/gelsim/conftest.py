@@ -1,5 +1,5 @@
 """Fixtures shared by the gelsim tests: the ViTac sensor profile at its own and at a small resolution
-(frozen dataclasses, so one instance serves every test)."""
+(frozen dataclasses, so one instance serves every test), and two short sequences prepared for the torch tests."""
 import pytest
 
 from gelsim.sensor import load_profile
@@ -26,3 +26,21 @@ def torch_one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(old)
+
+
+@pytest.fixture(scope="session")
+def two_sequences():
+    """Two short sequences prepared once (their contact simulations and patches: gelsim.sequence.SequenceRun, at
+    160x120, balanced): a twist of a plain weave and a slip of a corduroy. ``(profile, fidelity, [(object,
+    motion, seed), ...], [SequenceRun, ...])``; a test runs ``run.again()``, not the runs themselves."""
+    from gelsim.fabrics import load_catalog
+    from gelsim.fidelity import get_fidelity
+    from gelsim.motion import sample_motion
+    from gelsim.sequence import SequenceRun
+
+    prof = load_profile("vitac").with_resolution(160, 120)
+    fid = get_fidelity("balanced")
+    cat = load_catalog()
+    specs = [(cat[1], sample_motion("twist", 5, frames=(7, 7), precontact=(2, 2)), 5),
+             (cat[64], sample_motion("slip", 6, frames=(8, 8), precontact=(1, 1)), 6)]
+    return prof, fid, specs, [SequenceRun(o, m, prof, fid, seed=s) for o, m, s in specs]

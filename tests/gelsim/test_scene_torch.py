@@ -8,33 +8,16 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from gelsim.fabrics import load_catalog  # noqa: E402
-from gelsim.fidelity import get_fidelity  # noqa: E402
-from gelsim.motion import sample_motion  # noqa: E402
 from gelsim.scene_torch import SAMPLE_TOL_MM, PatchBank, sample_patches  # noqa: E402
-from gelsim.sequence import SequenceRun  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
 DEVICES = ["cpu", pytest.param("cuda", marks=CUDA)]
 
 
-@pytest.fixture(scope="module")
-def setup():
-    from gelsim.sensor import load_profile
-
-    prof = load_profile("vitac").with_resolution(160, 120)
-    fid = get_fidelity("balanced")
-    cat = load_catalog()
-    specs = [(cat[1], sample_motion("twist", 5, frames=(7, 7), precontact=(2, 2)), 5),
-             (cat[64], sample_motion("slip", 6, frames=(8, 8), precontact=(1, 1)), 6)]
-    prep = [SequenceRun(o, m, prof, fid, seed=s) for o, m, s in specs]
-    return prof, fid, specs, prep
-
-
 @pytest.mark.parametrize("device", DEVICES)
-def test_patch_sampling_matches_heightpatch(setup, device):
-    prof, _, _, prep = setup
+def test_patch_sampling_matches_heightpatch(two_sequences, device):
+    prof, _, _, prep = two_sequences
     bank = PatchBank.from_patches([p.patch for p in prep], device)
     which, poses, refs = [], [], []
     for k, p in enumerate(prep):

@@ -12,30 +12,14 @@ torch = pytest.importorskip("torch")
 from gelsim.engines import TorchEngine  # noqa: E402
 from gelsim.gel.twoscale_torch import TOLERANCE  # noqa: E402
 from gelsim.markers_torch import TOL_PX  # noqa: E402
-from gelsim.fabrics import load_catalog  # noqa: E402
-from gelsim.fidelity import get_fidelity  # noqa: E402
-from gelsim.motion import sample_motion  # noqa: E402
 from gelsim.optics import Renderer  # noqa: E402
 from gelsim.optics.torch_backend import TOL_MAX_UINT8_DN, BatchRenderer  # noqa: E402
-from gelsim.sequence import SequenceOptions, SequenceRun, render_sequence, render_sequences  # noqa: E402
+from gelsim.sequence import SequenceOptions, render_sequence, render_sequences  # noqa: E402
 from gelsim.sinks import DeviceFrames, KeepFrames, drain, drain_each  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
 DEVICES = ["cpu", pytest.param("cuda", marks=CUDA)]
-
-
-@pytest.fixture(scope="module")
-def setup():
-    from gelsim.sensor import load_profile
-
-    prof = load_profile("vitac").with_resolution(160, 120)
-    fid = get_fidelity("balanced")
-    cat = load_catalog()
-    specs = [(cat[1], sample_motion("twist", 5, frames=(7, 7), precontact=(2, 2)), 5),
-             (cat[64], sample_motion("slip", 6, frames=(8, 8), precontact=(1, 1)), 6)]
-    prep = [SequenceRun(o, m, prof, fid, seed=s) for o, m, s in specs]
-    return prof, fid, specs, prep
 
 
 def _in_step(prep, prof, fid, device, **kw):
@@ -48,8 +32,8 @@ def _in_step(prep, prof, fid, device, **kw):
 
 
 @pytest.mark.parametrize("device", DEVICES)
-def test_sequences_in_step_equal_render_sequence(setup, device):
-    prof, fid, specs, prep = setup
+def test_sequences_in_step_equal_render_sequence(two_sequences, device):
+    prof, fid, specs, prep = two_sequences
     labels, got = _in_step(prep, prof, fid, device)
     assert [len(f) for f in got] == [m.num_frames for _, m, _ in specs]
     br = BatchRenderer(Renderer(prof, "torch", seed=0, device="cpu"))
@@ -75,17 +59,17 @@ def test_sequences_in_step_equal_render_sequence(setup, device):
         assert diff.max() <= TOL_MAX_UINT8_DN, diff.max()
 
 
-def test_the_optics_batch_changes_no_byte(setup):
-    prof, fid, _, prep = setup
+def test_the_optics_batch_changes_no_byte(two_sequences):
+    prof, fid, _, prep = two_sequences
     (la, fa), (lb, fb) = _in_step(prep, prof, fid, "cpu"), _in_step(prep, prof, fid, "cpu", optics_batch=1)
     assert all(a.tobytes() == b.tobytes() for x, y in zip(fa, fb) for a, b in zip(x, y))
     assert all(a[k].tobytes() == b[k].tobytes() for a, b in zip(la, lb) for k in a)
 
 
-def test_sequences_in_step_on_the_numpy_engine_are_each_sequences_own_bytes(setup):
+def test_sequences_in_step_on_the_numpy_engine_are_each_sequences_own_bytes(two_sequences):
     """The driver is one for both engines: on the numpy engine, a sequence made in step with others is the same
     bytes as made alone (render_sequence)."""
-    prof, fid, specs, prep = setup
+    prof, fid, specs, prep = two_sequences
     keep = [KeepFrames() for _ in prep]
     out = drain_each(render_sequences([p.again() for p in prep], prof, fid), [[k] for k in keep])
     for i, (obj, motion, seed) in enumerate(specs):
@@ -96,11 +80,11 @@ def test_sequences_in_step_on_the_numpy_engine_are_each_sequences_own_bytes(setu
         assert all(a.tobytes() == b.tobytes() for a, b in zip(keep[i].frames, alone.frames))
 
 
-def test_no_tensor_is_made_off_the_batchs_device(setup):
+def test_no_tensor_is_made_off_the_batchs_device(two_sequences):
     """Every tensor the device path makes is on its inputs' device: with torch's default device set to "meta", a
     tensor made without naming one would be a meta tensor, and the first operation mixing it with the batch's
     (CPU) tensors would fail. (What would break on a GPU; checked here without one.)"""
-    prof, fid, specs, prep = setup
+    prof, fid, specs, prep = two_sequences
     renderer = BatchRenderer(Renderer(prof, "torch", seed=0, device="cpu"))
     runs = [p.again() for p in prep]
     engine = TorchEngine("cpu")
