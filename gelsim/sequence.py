@@ -1,11 +1,14 @@
 """One tactile sequence end to end: touched object -> contact -> gel -> optics.
 
 :func:`render_sequence` strings the stages together for one (object, motion) pair: the object's
-heights and the contact simulation once, then per frame the one-frame function of
-:mod:`gelsim.stream` (press -> markers -> render). It yields one :class:`gelsim.stream.FrameRecord` per
-frame (constant memory) to whoever consumes them (:mod:`gelsim.sinks`); the sequence's labels are
-assembled from the records' (:func:`gelsim.stream.sequence_labels`). Its options (renderer, sensor
-seed, shortcuts, outputs, reused parts) are one :class:`SequenceOptions`.
+heights and the contact simulation once (:class:`SequenceRun`), then per frame the frame pipeline of
+:mod:`gelsim.stream` (imprint, nuisance, markers, labels, optics). It yields one
+:class:`gelsim.stream.FrameRecord` per frame (constant memory) to whoever consumes them
+(:mod:`gelsim.sinks`); the sequence's labels are assembled from the records'
+(:func:`gelsim.stream.sequence_labels`). :func:`render_sequences` runs several sequences in step, frame t
+of each in one batch of the pipeline (the torch engine's way; on the numpy engine the same bytes as one by
+one). Their options (renderer, sensor seed, shortcuts, outputs, nuisance, reused parts) are one
+:class:`SequenceOptions`.
 
 Shortcuts (``SequenceOptions(shortcuts=True)``, the default) skip work a frame does not need; each
 gives the full computation's result within the tolerance stated here, checked by
@@ -35,7 +38,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Collection, Iterator, Mapping, Sequence
+from typing import Any, Collection, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -44,7 +47,6 @@ from .errors import GelsimError
 from .fidelity import Fidelity
 from .gel.twoscale import crown_envelope, texture_scale_mm
 from .motion import Motion
-from .optics import Renderer
 from .scene import PHYSICS_MM_PER_PX, HeightPatch, TouchedObject, as_object, physics_surface, press_properties, travel_patch  # noqa: F401
 from .sensor import SensorProfile
 from .stream import (NUMPY, FrameParts, FrameRecord, FrameRequest, FrameSetup, StageTimer, Touch, make_frames,
@@ -60,10 +62,12 @@ OUTPUTS = frozenset({"frames", "imprint", "markers"})
 
 @dataclass(frozen=True)
 class SequenceOptions:
-    """How :func:`render_sequence` runs: what it computes, and the parts of the sequence already computed.
+    """How :func:`render_sequence` (and :func:`render_sequences`) runs: what it computes, and the parts of the
+    sequence already computed.
 
-    ``renderer``: the sensor's :class:`gelsim.optics.Renderer` (default: one for the fidelity level, made
-    per call). ``sensor_seed`` fixes what belongs to the physical sensor and stays the same across a
+    ``renderer``: the sensor's renderer for the engine (a :class:`gelsim.optics.Renderer` for the numpy engine,
+    a :class:`gelsim.optics.torch_backend.BatchRenderer` for the torch engine; default: the engine's for the
+    fidelity level, made per call). ``sensor_seed`` fixes what belongs to the physical sensor and stays the same across a
     dataset (background illumination field, printed marker jitter). ``shortcuts``: skip work frames do
     not need (see the module docstring); False computes everything on every frame. ``outputs``: any of
     ``"frames"``, ``"imprint"`` (labels ``indentation_mm``, ``contact_area_mm2``, ``contact_centroid_px``,
@@ -76,7 +80,7 @@ class SequenceOptions:
     severity of a nuisance level (:meth:`gelsim.nuisance.NuisanceModel.level`; empty: none, today's
     frames), ``nuisance_stages`` the stages' parameters (default: gelsim/assets/nuisance.toml's).
     """
-    renderer: Renderer | None = None
+    renderer: Any = None
     sensor_seed: int = 0
     shortcuts: bool = True
     outputs: Collection[str] = OUTPUTS
