@@ -258,7 +258,7 @@ def render_sequences(sequences: Sequence, profile: SensorProfile, fidelity: Fide
     timer = StageTimer(engine.clock)
     heights = engine.upload([r.patch for r in runs])
     envelopes = engine.upload([r.envelope for r in runs])
-    timer.lap("upload")
+    timer.lap("fabric")                     # (the patches to the engine: on the torch engine, to its device)
     for step in range(max(r.num_frames for r in runs)):
         live = [k for k, r in enumerate(runs) if step < r.num_frames]
         pressing = [k for k in live if runs[k].pose(step) is not None]

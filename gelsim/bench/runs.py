@@ -27,7 +27,7 @@ from .scenes import BenchConfig, Scene, prepare_scene, scene_motion
 #: generation worker is timed: one thread on one core; wall time would count the other processes' turns
 #: on a shared machine). The end-to-end figure is the process's CPU time, which also counts helper
 #: threads (OpenGL's).
-TIMED_STAGES = ("fabric", "physics", "imprint", "markers", "optics", "encode")
+TIMED_STAGES = ("fabric", "physics", "imprint", "markers", "labels", "optics", "encode")
 
 
 @dataclass
