@@ -135,7 +135,8 @@ def test_outputs_nobody_asked_for_are_not_computed(setup, monkeypatch):
     _, full = run(setup)
     called = []
     monkeypatch.setattr(engines, "press", lambda *a, **k: called.append("press"))
-    monkeypatch.setattr(sequence, "Renderer", lambda *a, **k: called.append("renderer"))
+    monkeypatch.setattr(engines.NumpyEngine, "renderer", lambda *a, **k: called.append("renderer"))
+    monkeypatch.setattr(engines.NumpyEngine, "render", lambda *a, **k: called.append("render"))
     frames, out = run(setup, outputs=())
     assert frames == [None] * T and called == []
     assert "indentation_mm" not in out.labels and "markers_xy_px" not in out.labels
