@@ -126,6 +126,9 @@ class SequenceSpec:
     def labels_rel(self) -> str:
         return schema.labels_path(self.fabric_id, self.id)
 
+    def nuisance_rel(self) -> str:
+        return schema.nuisance_path(self.fabric_id, self.id)
+
 
 # ---------------------------------------------------------------- planning
 
@@ -434,7 +437,8 @@ def nuisance_level(config: GenerateConfig) -> dict:
     from .nuisance import load_nuisance
 
     model = load_nuisance()
-    return dict(nuisance=model.level(config.nuisance, config.nuisance_severity), nuisance_stages=model.stages)
+    return dict(nuisance=model.level(config.nuisance, config.nuisance_severity),
+                nuisance_stages=model.stages_for(config.nuisance))
 
 
 def _renderer(profile):
@@ -520,6 +524,7 @@ def _motion(spec: SequenceSpec):
 
 def generate_sequence(spec: SequenceSpec) -> dict:
     """Simulate, render, encode and record one sequence (in a worker). Returns its record."""
+    from .nuisance.record import NuisanceLog
     from .sequence import render_sequence
     from .sinks import drain
     from .stream import stage_clock
@@ -533,15 +538,16 @@ def generate_sequence(spec: SequenceSpec) -> dict:
     t0 = time.perf_counter()
     motion = _motion(spec)
     vpath = root / video_path(spec.video_stem(), config.format)
+    npath = root / spec.nuisance_rel()
     with _frame_sinks(renderer, vpath, profile.image.fps_hz, spec.seed) as (options, sinks):
         labels, timings = drain(render_sequence(fabric, motion, profile, fidelity, seed=spec.seed, options=options),
-                                sinks)
+                                [*sinks, NuisanceLog(npath)])
     te = stage_clock()
     lpath = root / spec.labels_rel()
     atomic_write_npz(lpath, **labels)
     timings["encode"] = timings.get("encode", 0.0) + stage_clock() - te
     return _record(spec, motion, root, vpath, lpath, labels, timings, time.perf_counter() - t0,
-                   _device_name(renderer))
+                   _device_name(renderer), npath)
 
 
 def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None) -> list[dict]:
@@ -552,6 +558,7 @@ def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None
     whose stage times are the group's shared by frames (the CPU part, ``fabric`` and ``physics``, their own)."""
     from .device.frame import prepare_sequence, render_sequences
     from .optics.torch_backend import DEFAULT_BATCH
+    from .nuisance.record import frame_row, stack_rows
     from .sinks import VideoSink
     from .stream import FrameRecord, stage_clock
     from .video import video_path
@@ -591,19 +598,22 @@ def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None
         te = stage_clock()
         lpath = root / spec.labels_rel()
         atomic_write_npz(lpath, **labels)
+        # --stages all runs no nuisance stage (refused above): every frame's record says nothing was applied
+        npath = root / spec.nuisance_rel()
+        atomic_write_npz(npath, **stack_rows([frame_row(None)] * prep.motion.num_frames))
         timings = dict(prep.seconds)
         for k, v in out["seconds"].items():
             timings[k] = timings.get(k, 0.0) + v * share
         timings["encode"] = writers[i].seconds["encode"] + stage_clock() - te
         records.append(_record(spec, prep.motion, root, paths[spec.id], lpath, labels, timings, wall * share,
-                               device))
+                               device, npath))
     return records
 
 
 def _record(spec: SequenceSpec, motion, root: Path, vpath: Path, lpath: Path, labels: dict, timings: dict,
-            seconds: float, device: str) -> dict:
-    """Write and return the record of ``spec`` (its ``motion``), whose video and labels are in place: written
-    last, it marks the sequence finished."""
+            seconds: float, device: str, npath: Path | None = None) -> dict:
+    """Write and return the record of ``spec`` (its ``motion``), whose video, labels and nuisance record (at
+    ``npath``; None: not written) are in place: written last, it marks the sequence finished."""
     in_contact = np.asarray(labels["in_contact"], bool)
     onset = int(np.argmax(in_contact)) if in_contact.any() else -1
     record = dict(id=spec.id, fabric_id=spec.fabric_id, action=spec.action, num_frames=motion.num_frames,
@@ -613,6 +623,9 @@ def _record(spec: SequenceSpec, motion, root: Path, vpath: Path, lpath: Path, la
                   peak_force_n=float(np.max(labels["normal_force_n"])),
                   timings_s={k: round(v, 4) for k, v in timings.items()},
                   seconds=round(seconds, 3), device=device)
+    if npath is not None:
+        record["nuisance"] = str(npath.relative_to(root))
+        record["sha256"]["nuisance"] = sha256_of(npath)
     if spec.unit >= 0:
         record["unit"] = spec.unit
     atomic_write_json(root / schema.record_path(spec.id), record)
@@ -1010,10 +1023,12 @@ def summarize_timings(root: str | Path, manifest: dict) -> dict:
 def verify(root: str | Path, *, decode: bool = True, progress: Callable[[int, int], None] | None = None) -> list[str]:
     """Check every file against the manifest; returns a list of faults (empty when sound).
 
-    Checks: manifest complete; each sequence's video and labels present, their checksums
-    as recorded, the video decodes to ``num_frames`` frames and the labels hold every key of
-    :data:`gelsim.schema.LABELS` with its shape (one row per frame) and dtype.
+    Checks: manifest complete; each sequence's video and labels (and per-frame nuisance record, in datasets
+    that have one) present, their checksums as recorded, the video decodes to ``num_frames`` frames, the labels
+    hold every key of :data:`gelsim.schema.LABELS` and the record every key of
+    :data:`gelsim.nuisance.record.RECORD`, with their shapes (one row per frame) and dtypes.
     """
+    from .nuisance.record import record_problems
     from .video import count_frames
 
     root = Path(root)
@@ -1028,7 +1043,8 @@ def verify(root: str | Path, *, decode: bool = True, progress: Callable[[int, in
             faults.append(f"{sid}: not generated yet")
             continue
         v, lab = root / s["video"], root / s["labels"]
-        for kind, p in (("video", v), ("labels", lab)):
+        nui = root / s["nuisance"] if "nuisance" in s else None
+        for kind, p in (("video", v), ("labels", lab)) + ((("nuisance", nui),) if nui is not None else ()):
             if not p.exists():
                 faults.append(f"{sid}: {kind} {s[kind]} is missing")
             elif sha256_of(p) != s["sha256"][kind]:
@@ -1047,6 +1063,12 @@ def verify(root: str | Path, *, decode: bool = True, progress: Callable[[int, in
                     faults += [f"{sid}: {p}" for p in schema.label_problems(z, s["num_frames"])]
             except Exception as e:  # any unreadable npz is a fault to report, not to crash on
                 faults.append(f"{sid}: labels unreadable ({type(e).__name__})")
+        if nui is not None and nui.exists():
+            try:
+                with np.load(nui) as z:
+                    faults += [f"{sid}: {p}" for p in record_problems(z, s["num_frames"])]
+            except Exception as e:  # as above
+                faults.append(f"{sid}: nuisance record unreadable ({type(e).__name__})")
         if progress:
             progress(k + 1, len(seqs))
     return faults

@@ -44,12 +44,14 @@ def register(sub) -> None:
                         "imply (docs/nuisance.md)]")
     p.add_argument("--nuisance", metavar="LEVEL",
                    help="what a real, hand-held sensor adds before and around the touch, a level of "
-                        "gelsim/assets/nuisance.toml: none, camera (the webcam's auto-exposure and white balance "
-                        "settling), handheld (camera + loose fibres of hairy fabrics); labels never change "
-                        "(docs/nuisance.md) [default: none]")
+                        "gelsim/assets/nuisance.toml: none; camera (the webcam's start-up, caught by the first "
+                        "recording of a cloth, one in 30); handheld (camera + loose fibres of hairy fabrics); "
+                        "webcam-restart (a stream started with every recording: dark first frames; contradicts "
+                        "ViTac). Labels never change; nuisance/ records what each frame got (docs/nuisance.md) "
+                        "[default: none]")
     p.add_argument("--nuisance-severity", metavar="S", type=float,
                    help="every stage of --nuisance's level at severity S: 0 off, 1 the data file's, up to 4 "
-                        "(a sweep's knob) [default: the level's]")
+                        "(a sweep's knob: more recordings catch the start-up, more fibres stand) [default: the level's]")
     p.add_argument("--profile", metavar="NAME|PATH", help="sensor profile [default: vitac, 960x720]")
     p.add_argument("--resolution", metavar="WxH", help="render at this size, same field of view in mm [default: the profile's]")
     p.add_argument("--fidelity", choices=["fast", "balanced", "reference"], help="speed/accuracy level [default: balanced]")
