@@ -166,9 +166,9 @@ def parse_resolution(text: str) -> tuple[int, int]:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise GelsimError(f"--resolution {text!r} is malformed; give WIDTHxHEIGHT, e.g. 320x240") from None
-    if w < 16 or h < 16:
-        raise GelsimError(f"--resolution {text!r} is too small; use at least 16x16")
-    return w, h
+    if w < 1 or h < 1:
+        raise GelsimError(f"--resolution {text!r} is malformed; give WIDTHxHEIGHT in whole pixels, e.g. 320x240")
+    return w, h   # the sensor's own range is checked with its profile (SensorProfile.with_resolution)
 
 
 def apportion(total: int, weights: Iterable[float]) -> list[int]:
@@ -429,7 +429,10 @@ def nuisance_level(config: GenerateConfig) -> dict:
     """``config.nuisance``'s stages at ``config.nuisance_severity``: ``nuisance`` (stage -> severity; empty for
     ``none``, which loads nothing)
     and ``nuisance_stages`` (their parameters, or None). An unknown level is a one-line GelsimError."""
-    if config.nuisance == "none" and config.nuisance_severity is None:
+    if config.nuisance == "none":
+        if config.nuisance_severity is not None:   # it would change nothing, yet be recorded
+            raise GelsimError("--nuisance-severity scales the stages of a --nuisance level, and none is set; add "
+                              "--nuisance camera or handheld, or drop --nuisance-severity")
         return dict(nuisance={}, nuisance_stages=None)
     from .nuisance import load_nuisance
 
@@ -900,6 +903,18 @@ def _sequence_results(config: GenerateConfig, root: Path, todo: list[SequenceSpe
         pool.join()
 
 
+def check_workers(workers: int | None) -> int:
+    """The worker processes a local run starts: ``workers`` (None: one per core), checked to be 1 to the
+    machine's cores (more processes than cores only share them, and a typo of 100,000 would fork as many)."""
+    cores = os.cpu_count() or 1
+    if workers is None:
+        return cores
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= cores:
+        raise GelsimError(f"--workers {workers} is out of range; give 1 to {cores} (this machine's cores; "
+                          "the default is all of them)")
+    return workers
+
+
 def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = None,
              progress: Callable[[int, int, dict], None] | None = None, previews: bool = True,
              ray: str | None = None, replace_stale: bool = False,
@@ -927,6 +942,8 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
         raise GelsimError(f"--units {config.units} is out of range; give 0 (the profile itself) to {MAX_UNITS}")
     unit_profiles(config, profile)  # a profile without [unit_variation] fails here, before anything is written
     nuisance_level(config)          # an unknown level fails here too
+    if ray is None or ray == "local":   # (a cluster's CPUs are its own: gelsim.cluster.connect says so)
+        check_workers(workers)
     specs = plan(config, len(catalog))
     root = Path(out)
     connection = contextlib.nullcontext(None)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from gelsim.atomic import out_folder
 from gelsim.cli import ArgumentParser, HelpFormatter, dispatch, print_json, print_result
 
 from . import __version__
@@ -70,10 +71,11 @@ def _onsets(args) -> int:
 def _pretrain(args) -> int:
     from .train import pretrain
 
-    res = pretrain(args.data, args.out, width=args.width, image_size=args.image_size, epochs=args.epochs,
-                   batch_size=args.batch_size, lr=args.lr, optimizer=args.optimizer, seed=args.seed, contact_only=not args.all_frames,
-                   device=args.device, progress=not args.quiet, crop=args.crop,
-                   log=None if args.json or args.quiet else print)
+    with out_folder(args.out):
+        res = pretrain(args.data, args.out, width=args.width, image_size=args.image_size, epochs=args.epochs,
+                       batch_size=args.batch_size, lr=args.lr, optimizer=args.optimizer, seed=args.seed,
+                       contact_only=not args.all_frames, device=args.device, progress=not args.quiet, crop=args.crop,
+                       log=None if args.json or args.quiet else print)
     return print_result(args.json, res, f"backbone: {res['path']} (validation frame accuracy {res['val_acc']:.3f})")
 
 
@@ -85,7 +87,7 @@ def _train(args) -> int:
                  "seed": args.seed}
     if args.quiet or args.json:
         overrides["progress"] = False
-    with one_line_per_rank():   # under torchrun: every rank's stop is one line
+    with one_line_per_rank(), out_folder(args.out):   # under torchrun: every rank's stop is one line
         res = run_train(args.data, args.out, preset=args.preset, overrides=overrides, sets=args.set,
                         pretrained=args.pretrained, resume=args.resume, dry_run=args.dry_run,
                         log=None if args.json or args.quiet else print,
@@ -107,7 +109,8 @@ def _train(args) -> int:
 def _evaluate(args) -> int:
     from .evaluate import evaluate
 
-    res = evaluate(args.checkpoint, args.data, args.split, out=args.out, device=args.device)
+    with out_folder(args.out or "."):
+        res = evaluate(args.checkpoint, args.data, args.split, out=args.out, device=args.device)
     return print_result(args.json, res, f"{res['split']} accuracy {res['accuracy']:.4f} ({res['count']} windows), "
                         f"mean per-class {res['mean_class_accuracy']:.4f}; confusion matrix: {res['confusion_png']}")
 
@@ -121,9 +124,10 @@ def _experiment(args) -> int:
         import_ray()  # not installed: one line, before anything is written
     stdout = sys.stdout  # progress lines stay on stdout while Ray's own messages go to stderr (gelsim.cluster)
     overrides = {"attention_at": args.attention_at} if args.attention_at else None
-    res = run_experiment(args.data, args.out, args.preset, args.seeds, args.models, args.frames, args.settings,
-                         overrides=overrides, log=None if args.json else (lambda m: print(m, file=stdout)),
-                         note=lambda m: print(m, file=sys.stderr), ray=args.ray)
+    with out_folder(args.out):
+        res = run_experiment(args.data, args.out, args.preset, args.seeds, args.models, args.frames, args.settings,
+                             overrides=overrides, log=None if args.json else (lambda m: print(m, file=stdout)),
+                             note=lambda m: print(m, file=sys.stderr), ray=args.ray)
     if args.json:
         print_json({k: v for k, v in res.items() if k != "cells"} | {"cells": len(res["cells"])})
     else:
@@ -150,7 +154,8 @@ def _compare(args) -> int:
 def _explain(args) -> int:
     from .explain import explain
 
-    res = explain(args.checkpoint, args.sequence, args.out, args.data, args.split)
+    with out_folder(args.out):
+        res = explain(args.checkpoint, args.sequence, args.out, args.data, args.split)
     return print_result(args.json, res, "\n".join(res["files"]))
 
 

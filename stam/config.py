@@ -14,6 +14,7 @@ naming the file and key. ``stam train`` and ``stam experiment`` read the same pr
 from __future__ import annotations
 
 import dataclasses
+import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -187,11 +188,24 @@ def load_preset(preset: str | Path) -> Preset:
     return _build(Preset, {"name": name, **raw}, str(path))
 
 
-def resolve_train(base: TrainConfig, overrides: dict | None = None, source: str = "the command line") -> TrainConfig:
-    """``base`` with ``overrides`` (None values skipped), validated like a file."""
+#: ``resolve_train``'s source for the options of ``stam train`` (``--frames``, ``--epochs``, ...).
+COMMAND_LINE = "the command line"
+
+
+def resolve_train(base: TrainConfig, overrides: dict | None = None, source: str = COMMAND_LINE) -> TrainConfig:
+    """``base`` with ``overrides`` (None values skipped), validated like a file. A bad value from the
+    command line is named as its option (``--frames 0``), one from ``--set`` as ``--set frames``."""
     values = dataclasses.asdict(base)
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
-    return _build(TrainConfig, values, source)
+    try:
+        return _build(TrainConfig, values, source)
+    except StamError as e:
+        if source not in (COMMAND_LINE, "--set"):
+            raise
+        named = re.sub(rf"^{re.escape(source)}\.(\w+):",
+                       lambda m: (f"--{m[1].replace('_', '-')}" if source == COMMAND_LINE else f"--set {m[1]}") + ":",
+                       str(e))
+        raise StamError(named) from None
 
 
 def _build(cls, data: dict, where: str):

@@ -256,6 +256,17 @@ class TactileDataset:
         text = f"{self._video_sha.get(seq.id, '')}:{size}:{mtime}"
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
+    def check_video(self, seq: Sequence) -> None:
+        """StamError naming ``seq``'s video when it does not match the manifest's checksum (changed or
+        truncated since it was written: it might still decode, into other frames). Called before the one
+        decode whose frames are cached: a video changed since gets another cache key (:meth:`cache_key`),
+        so it is checked again."""
+        want = self._video_sha.get(seq.id)
+        if want and schema.sha256_of(seq.video) != want:
+            raise StamError(f"video {seq.video} does not match the manifest's checksum (changed or truncated since "
+                            f"it was written); regenerate it (rerun gelsim generate with the same options after "
+                            f"deleting it) or see `gelsim verify {self.dir}`")
+
     def _paths(self, seq: Sequence, size: int) -> tuple[Path, Path]:
         d = self.cache_dir / (f"{size}px" if self.crop == 1.0 else f"{size}px-crop{self.crop:g}")
         key = f"{seq.id}-{self.cache_key(seq)}"
@@ -268,6 +279,7 @@ class TactileDataset:
             return
         from gelsim.video import read_video
 
+        self.check_video(seq)
         frames = read_video(seq.video)
         if frames.shape[0] < 1:
             raise StamError(f"video {seq.video} has no frames; regenerate the dataset")

@@ -84,6 +84,18 @@ def warn_if_bottomed(prog: str, bottomed: bool, carried_n: float, asked_n: float
                "ask for less force or depth to stay within the gel's range")
 
 
+def needs_subcommand(parser: argparse.ArgumentParser, subparsers) -> None:
+    """``parser``, a command of subcommands (``subparsers``, its ``add_subparsers()``, all added), run
+    without one: one line naming them, status 2 (argparse alone would run nothing)."""
+    names = list(subparsers.choices)
+
+    def handler(args) -> int:
+        raise GelsimError(f"`{parser.prog}` needs a subcommand, one of {', '.join(names)}; e.g. "
+                          f"`{parser.prog} {names[0]}` (see `{parser.prog} --help`)")
+
+    parser.set_defaults(handler=handler)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(
         prog="gelsim",

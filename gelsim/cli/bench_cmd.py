@@ -100,6 +100,11 @@ def configs_from_args(args) -> list:
     cat = load_catalog()
     for f in quick["fabrics"]:
         cat[f]  # an unknown id raises GelsimError naming the valid ids
+    from ..sensor import load_profile
+
+    profile = load_profile(args.profile)
+    for w, h in resolutions:
+        profile.with_resolution(w, h)   # a size outside the sensor's range: one line, before any work
     cfgs = [BenchConfig.at(r, levels=_split(args.levels), reference=args.reference, profile=args.profile,
                            seed=args.seed, video_format=args.format, cache_dir=cache, **quick) for r in resolutions]
     for c in cfgs:

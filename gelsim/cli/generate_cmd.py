@@ -145,8 +145,8 @@ def run_generate(args: argparse.Namespace) -> int:
     from . import print_json
 
     cfg = config_from_args(args)
-    if args.workers is not None and args.workers < 1:
-        raise GelsimError("--workers must be at least 1")
+    if args.ray is None or args.ray == "local":
+        dataset.check_workers(args.workers)
     if args.dry_run:
         return _dry_run(cfg, args)
     if args.ray is not None:
@@ -205,6 +205,7 @@ def _dry_run(cfg, args) -> int:
     from ..fidelity import get_fidelity
 
     dataset.check_render(cfg, get_fidelity(cfg.fidelity))  # and a device this machine lacks
+    dataset.nuisance_level(cfg)                           # and a nuisance level that does not exist
     specs = dataset.plan(cfg, len(catalog))
     frames = sum(s.num_frames for s in specs)
     try:

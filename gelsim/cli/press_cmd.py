@@ -54,16 +54,16 @@ def run_press(args: argparse.Namespace) -> int:
         return 0
 
     def fmt(v):
-        return "-" if v is None else f"{v:.4f}"
+        # four decimals while they fit the 11 characters of a column, else four significant digits
+        return "-" if v is None else (f"{v:.4f}" if abs(v) < 1e5 else f"{v:.4g}")
 
     w = sys.stdout.write
     w(f"{rep['indenter']} pressed with {rep['force_n']:g} N into {rep['profile']} "
       f"({rep['model']} model, {rep['resolution_px'][0]}x{rep['resolution_px'][1]} px)\n")
-    w(f"{'':22}{'simulated':>12}{'Hertz':>12}{'ratio':>9}\n")
-    w(f"{'contact radius (mm)':22}{fmt(rep['contact_radius_mm']):>12}{fmt(rep['hertz_contact_radius_mm']):>12}"
-      f"{fmt(rep['contact_radius_ratio']):>9}\n")
-    w(f"{'indentation (mm)':22}{fmt(rep['indentation_mm']):>12}{fmt(rep['hertz_indentation_mm']):>12}"
-      f"{fmt(rep['indentation_ratio']):>9}\n")
+    w(f"{'':22}{'simulated':>12}{'Hertz':>12}{'ratio':>12}\n")
+    for name, key in (("contact radius (mm)", "contact_radius"), ("indentation (mm)", "indentation")):
+        w(f"{name:22}" + "".join(f" {fmt(rep[k]):>11}" for k in (f"{key}_mm", f"hertz_{key}_mm", f"{key}_ratio"))
+          + "\n")
     w(f"contact area {rep['contact_area_mm2']:.4f} mm^2, a/h = {rep['contact_radius_over_thickness']:.3f}"
       f"{', BOTTOMED OUT' if rep['bottomed_out'] else ''}, {rep['elapsed_ms']:.0f} ms\n")
     return 0
