@@ -14,6 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .annotate import caption, stretched_difference, stretched_differences, tile
 from .atomic import write_png
 from .sensor import SensorProfile, load_profile
 
@@ -24,33 +25,15 @@ FABRICS = (21, 58, 65, 88)
 FORCE_N = 2.5
 #: The camera's resolution, px (the ViTac camera's 960x720).
 RESOLUTION = (960, 720)
-#: The difference is stretched so that this percentile of its magnitude reaches full scale (a few
-#: marker edges may clip).
-STRETCH_PERCENTILE = 99.5
 FIRST_LOOK_DIR = "first_look"
+#: With a nuisance level: how many of a sequence's first frames the first look shows (the webcam's
+#: exposure and white balance settle over its first frames, gelsim/assets/nuisance.toml).
+NUISANCE_FRAMES = 4
 
 
 def _label(img: np.ndarray, lines: list[str], scale: float) -> np.ndarray:
     """``img`` with ``lines`` in white on a black outline from its top-left corner."""
-    out = img.copy()
-    step = round(30 * scale)
-    for i, text in enumerate(lines):
-        x, y = round(10 * scale), step * (i + 1)
-        thick = max(1, round(1.5 * scale))
-        # the outline as the same strokes shifted (a thicker stroke would widen OpenCV's glyph advances)
-        for dx, dy in ((-1, -1), (-1, 1), (1, -1), (1, 1), (0, 2), (2, 0), (0, -2), (-2, 0)):
-            cv2.putText(out, text, (x + dx, y + dy), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick, cv2.LINE_AA)
-        cv2.putText(out, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
-    return out
-
-
-def stretched_difference(frame: np.ndarray, flat: np.ndarray) -> tuple[np.ndarray, float]:
-    """``frame - flat`` per channel, mapped to uint8 around mid-grey 128 with the gain that takes its
-    :data:`STRETCH_PERCENTILE` magnitude to 127 (returned with the image: how much it was stretched)."""
-    diff = frame.astype(np.float32) - flat.astype(np.float32)
-    scale = float(np.percentile(np.abs(diff), STRETCH_PERCENTILE))
-    gain = 127.0 / max(scale, 1.0)
-    return np.clip(128.0 + diff * gain, 0, 255).astype(np.uint8), gain
+    return caption(img, lines, scale)
 
 
 def first_look_frames(fabrics=FABRICS, profile: str | Path | SensorProfile = "vitac", *, force_n: float = FORCE_N,
@@ -96,9 +79,39 @@ def panels(look: dict, scale: float = 1.0) -> np.ndarray:
     return np.concatenate([left, right], axis=1)
 
 
-def write_first_look(previews_dir: Path, manifest: dict | None = None, *, fabrics=FABRICS) -> list[Path]:
+def nuisance_rows(root: Path, manifest: dict, flat) -> np.ndarray | None:
+    """With a nuisance level (the manifest's options): uint8 RGB rows :data:`RESOLUTION`'s half width
+    wide showing the first :data:`NUISANCE_FRAMES` frames of the dataset's sequence with the most frames
+    before contact, as the dataset holds them and minus the flat gel (``flat(sequence)``: uint8 (H, W, 3)),
+    captioned; None without a level."""
+    level = (manifest.get("options") or {}).get("nuisance") or "none"
+    seqs = [s for s in manifest.get("sequences", []) if "video" in s]
+    if level == "none" or not seqs:
+        return None
+    from .video import read_video
+
+    seq = max(seqs, key=lambda s: s.get("precontact_frames") or 0)   # the first of the most
+    frames = read_video(Path(root) / seq["video"])[:NUISANCE_FRAMES]
+    diffs, gains = stretched_differences(frames, flat(seq))
+    width = RESOLUTION[0] // NUISANCE_FRAMES   # the sheet's: two half-scale panels side by side
+    onset = seq.get("contact_onset")
+    severity = (manifest.get("options") or {}).get("nuisance_severity")
+    what = f"--nuisance {level}" + ("" if severity is None else f" --nuisance-severity {severity:g}")
+    top, bottom = [], []
+    for t, (f, d, gain) in enumerate(zip(frames, diffs, gains)):
+        state = "before contact" if onset is None or onset < 0 or t < onset else "contact"
+        head = [f"{seq['id']} with {what}"] if t == 0 else []
+        top.append(caption(tile(f, width), head + [f"frame {t}, {state}"]))
+        bottom.append(caption(tile(d, width), [f"minus the flat gel x{gain:.0f}"]))
+    return np.concatenate([np.concatenate(top, axis=1), np.concatenate(bottom, axis=1)], axis=0)
+
+
+def write_first_look(previews_dir: Path, manifest: dict | None = None, *, fabrics=FABRICS, root: Path | None = None,
+                     flat=None) -> list[Path]:
     """Write the first look into ``previews_dir`` (see the module docstring) for the dataset's sensor
-    (``manifest``'s profile when it is a shipped one, else vitac); returns the paths written."""
+    (``manifest``'s profile when it is a shipped one, else vitac); with a nuisance level and the dataset's
+    ``root`` and ``flat`` (its flat gel per sequence, :class:`gelsim.previews.FlatFrames`), the sheet ends
+    with that level's first frames (:func:`nuisance_rows`). Returns the paths written."""
     from .sensor import list_profiles
 
     name = ((manifest or {}).get("profile") or {}).get("name")
@@ -112,7 +125,10 @@ def write_first_look(previews_dir: Path, manifest: dict | None = None, *, fabric
         p = folder / f"f{look['fabric']:03d}-{look['family']}.png"
         write_png(p, panels(look))
         written.append(p)
-    sheet = np.concatenate([panels(look, 0.5) for look in looks], axis=0)
+    rows = [panels(look, 0.5) for look in looks]
+    extra = None if root is None or flat is None or manifest is None else nuisance_rows(root, manifest, flat)
+    if extra is not None:
+        rows.append(extra)
     p = previews_dir / "first_look.png"
-    write_png(p, sheet)
+    write_png(p, np.concatenate(rows, axis=0))
     return [p, *written]

@@ -28,6 +28,7 @@ COMMAND_MODULES = (
     "realism_cmd",
     "render_cmd",
     "sensors_cmd",
+    "show_cmd",
     "texture_cmd",
 )
 
