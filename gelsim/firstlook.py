@@ -58,11 +58,44 @@ def first_look_frames(fabrics=FABRICS, profile: str | Path | SensorProfile = "vi
     return out
 
 
+#: The per-fabric values a cached first look keeps beside its frames.
+_LOOK_KEYS = ("fabric", "name", "family", "gain", "force_n")
+
+
+def looks_cache_path(fabrics: tuple[int, ...], profile: str) -> Path:
+    """Where :func:`_cached_looks` keeps the first look of ``fabrics`` on ``profile`` between runs: under the
+    user cache (``$GELSIM_CACHE`` or ``~/.cache/gelsim``), named by the gelsim code and assets that render it
+    (:func:`gelsim.provenance.source_digest`), so that other code renders it anew."""
+    from .provenance import source_digest
+    from .realism import cache_dir
+
+    return cache_dir() / FIRST_LOOK_DIR / f"{profile}-{'-'.join(map(str, fabrics))}-{source_digest()[:16]}.npz"
+
+
 @functools.lru_cache(maxsize=4)
 def _cached_looks(fabrics: tuple[int, ...], profile: str) -> list[dict]:
-    """:func:`first_look_frames` of a shipped profile, once per process (4-8 s; a process that generates
-    several datasets, such as a test run, pays it once; the arrays are read only)."""
-    return first_look_frames(fabrics, profile)
+    """:func:`first_look_frames` of a shipped profile: rendered once per machine and code version (4-8 s at
+    960x720; every `gelsim generate` paid it), then read from :func:`looks_cache_path` (its arrays read only).
+    A cache that cannot be read or written is passed by: the looks are rendered."""
+    from .atomic import atomic_open
+
+    path = looks_cache_path(fabrics, profile)
+    try:
+        with np.load(path) as z:
+            return [{**{k: z[f"{i}_{k}"].item() for k in _LOOK_KEYS}, "frame": z[f"{i}_frame"],
+                     "difference": z[f"{i}_difference"]} for i in range(len(fabrics))]
+    except (OSError, KeyError, ValueError):
+        pass
+    looks = first_look_frames(fabrics, profile)
+    arrays = {f"{i}_{k}": np.asarray(look[k]) for i, look in enumerate(looks) for k in _LOOK_KEYS + ("frame", "difference")}
+    try:
+        for old in path.parent.glob(f"{profile}-{'-'.join(map(str, fabrics))}-*.npz"):
+            old.unlink()                          # other code's looks: never read again
+        with atomic_open(path) as f:
+            np.savez(f, **arrays)
+    except (OSError, ValueError):   # a read-only home, a full disk (a GelsimError): made anyway, next time too
+        pass
+    return looks
 
 
 def panels(look: dict, scale: float = 1.0) -> np.ndarray:

@@ -107,9 +107,11 @@ def load_manifest(data_dir: str | Path) -> dict:
 
 
 def _writable(d: Path) -> bool:
+    """Whether files can be written in folder ``d``, or in the folder that would hold it (``d`` is made
+    when the first file is cached: a command that stops before leaves nothing behind)."""
+    target = d if d.exists() else d.parent
     try:
-        d.mkdir(parents=True, exist_ok=True)
-        probe = d / f".probe-{os.getpid()}"
+        probe = target / f".probe-{os.getpid()}"
         probe.write_bytes(b"")
         probe.unlink()
         return True
@@ -120,7 +122,7 @@ def _writable(d: Path) -> bool:
 def default_cache_dir(data_dir: Path) -> Path:
     """``DIR/.stam-cache`` if writable, else ``$XDG_CACHE_HOME/stam/<hash of DIR>``."""
     d = data_dir / ".stam-cache"
-    if _writable(d):
+    if d.parent.is_dir() and _writable(d):
         return d
     base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "stam"
     return base / hashlib.sha256(str(data_dir.resolve()).encode()).hexdigest()[:16]

@@ -54,6 +54,18 @@ class ArgumentParser(argparse.ArgumentParser):
         sys.exit(2)
 
 
+def seed_arg(text: str) -> int:
+    """argparse ``type`` of every ``--seed``: a whole number >= 0 (numpy's generators refuse a negative seed,
+    which was a traceback)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a seed; give a whole number >= 0")
+    return value
+
+
 def print_json(obj) -> None:
     """Write one JSON document to stdout (the ``--json`` contract of every command)."""
     json.dump(obj, sys.stdout, indent=2, default=json_default)
@@ -83,6 +95,14 @@ def warn_if_bottomed(prog: str, bottomed: bool, carried_n: float, asked_n: float
     asked = "" if asked_n is None else f" of the {asked_n:g} N asked"
     warn(prog, f"the gel bottomed out (pressed to its full travel) and carries {carried_n:.3g} N{asked}; "
                "ask for less force or depth to stay within the gel's range")
+
+
+def say_first_run(prog: str) -> None:
+    """For a command that renders frames: the first compile of the numba kernels on this machine (20-40 s)
+    is said on stderr in one line, ``PROG: first run on this machine: compiling ...`` (gelsim.firstrun)."""
+    from ..firstrun import announce_compiles
+
+    announce_compiles(lambda line: print(f"{prog}: {line}", file=sys.stderr, flush=True))
 
 
 def needs_subcommand(parser: argparse.ArgumentParser, subparsers) -> None:

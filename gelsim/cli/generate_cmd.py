@@ -12,7 +12,7 @@ from ..errors import GelsimError
 def register(sub) -> None:
     from ..optics import BACKENDS
     from ..optics.torch_backend import DEFAULT_BATCH, TOL_MAX_DN
-    from . import HelpFormatter
+    from . import HelpFormatter, seed_arg
 
     p = sub.add_parser(
         "generate", formatter_class=HelpFormatter,
@@ -70,7 +70,7 @@ def register(sub) -> None:
     p.add_argument("--batch", type=int, metavar="FRAMES",
                    help="with --backend torch: frames rendered at once; the output is the same bytes for any "
                         f"batch [default: {DEFAULT_BATCH}]")
-    p.add_argument("--seed", type=int, metavar="N", help="dataset seed [default: 0]")
+    p.add_argument("--seed", type=seed_arg, metavar="N", help="dataset seed [default: 0]")
     p.add_argument("--workers", type=int, metavar="N", default=None, help="worker processes [default: all cores]")
     p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
                    help="run each sequence as a Ray task: alone, on a Ray instance started on this machine "
@@ -153,6 +153,9 @@ def run_generate(args: argparse.Namespace) -> int:
         from ..cluster import import_ray
 
         import_ray()  # not installed: one line, before anything is written
+    from . import say_first_run
+
+    say_first_run("gelsim generate")   # said by whichever worker compiles first
     bar = None
     frames_done = [0]
     t0 = time.perf_counter()

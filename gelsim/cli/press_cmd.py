@@ -41,6 +41,9 @@ def run_press(args: argparse.Namespace) -> int:
     from ..frame import press_report
     from ..scene import indenter
 
+    from . import say_first_run
+
+    say_first_run("gelsim press")
     sized = args.indenter in ("sphere", "cylinder")
     obj = indenter(args.indenter, diameter_mm=args.diameter_mm if sized else None, length_mm=args.length_mm,
                    angle_deg=args.angle_deg)

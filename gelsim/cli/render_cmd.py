@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import time
 
-from . import HelpFormatter, print_result, warn_if_bottomed
+from . import HelpFormatter, print_result, seed_arg, warn_if_bottomed
 from ..frame import DEFAULT_FORCE_N
 from ..optics import BACKENDS
 
@@ -30,7 +30,7 @@ def register(subparsers) -> None:
                    help="with --backend torch: where it renders (default: cpu)")
     p.add_argument("--fidelity", default="balanced", choices=["fast", "balanced", "reference"],
                    help="fidelity level (imprint model, supersampling, default backend)")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seed", type=seed_arg, default=0,
                    help="random seed: fabric irregularities, background field, marker jitter, noise (integer)")
     p.add_argument("--out", required=True, metavar="FILE.png", help="output PNG file (required)")
     p.add_argument("--json", action="store_true", help="also print what was rendered and each stage's time (ms)")
@@ -53,8 +53,11 @@ def run(args) -> int:
     from ..atomic import check_out_file, write_png
     from ..frame import render_frame
 
+    from . import say_first_run
+
     t0 = time.perf_counter()
     out = check_out_file(args.out)     # before the work, not after it
+    say_first_run("gelsim render")
     rgb, info = render_frame(make_object(args.fabric, args.indenter, args.diameter_mm), args.profile, args.fidelity,
                              force_n=args.force_n, depth_mm=args.depth_mm, backend=args.backend, seed=args.seed,
                              device=args.device)

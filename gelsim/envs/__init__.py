@@ -21,7 +21,7 @@ except ImportError:  # the optional extra is missing
     from ..errors import GelsimError
 
     raise GelsimError("gelsim.envs needs gymnasium, an optional extra; install it with `make gym` "
-                      "(or pip install 'gelsim[gym]')") from None
+                      "in the clone, or `pip install gymnasium==1.4.0`") from None
 
 from .grasp import GraspEnv  # noqa: E402
 

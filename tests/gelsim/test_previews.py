@@ -192,3 +192,27 @@ def test_a_nuisance_level_shows_in_the_first_look(tiny, tmp_path):
     assert np.array_equal(noisy[:clean.shape[0]], clean)          # the fabrics' rows are the same
     first = noisy[clean.shape[0] + 40:clean.shape[0] + tile_h, :w // NUISANCE_FRAMES]
     assert first.mean() < 0.5 * clean[:, : w // 2].mean()        # the exposure starts dark
+
+
+def test_the_first_look_is_rendered_once_per_machine(tmp_path, monkeypatch):
+    """Every `gelsim generate` rendered the first look's four 960x720 fabrics anew (4-8 s of a 6-15 s quick
+    run): they are kept in the user cache, named by the code that renders them, and read back."""
+    from gelsim import firstlook
+
+    monkeypatch.setenv("GELSIM_CACHE", str(tmp_path))
+    firstlook._cached_looks.cache_clear()
+    fabrics = firstlook.FABRICS[:1]
+    first = firstlook._cached_looks(fabrics, "vitac")
+    path = firstlook.looks_cache_path(fabrics, "vitac")
+    assert path.is_file() and path.is_relative_to(tmp_path)
+    firstlook._cached_looks.cache_clear()
+
+    def fail(*args, **kwargs):
+        raise AssertionError("rendered again")
+
+    monkeypatch.setattr(firstlook, "first_look_frames", fail)
+    again = firstlook._cached_looks(fabrics, "vitac")
+    assert [sorted(a) for a in again] == [sorted(a) for a in first]
+    for a, b in zip(again, first):
+        assert all(np.array_equal(a[k], b[k]) if isinstance(a[k], np.ndarray) else a[k] == b[k] for k in a)
+    firstlook._cached_looks.cache_clear()

@@ -57,7 +57,7 @@ def test_preset_file_errors(tmp_path):
         (tmp_path / name).write_text(text)
         with pytest.raises(GelsimError, match=match):
             load_preset(str(tmp_path / name))
-    with pytest.raises(GelsimError, match="unknown preset 'gpu9'"):
+    with pytest.raises(GelsimError, match="unknown config 'gpu9'"):
         load_preset("gpu9")
 
 
@@ -164,7 +164,7 @@ def test_the_first_line_describes_the_run_not_the_preset(synth, tmp_path, capsys
     assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "r"), "--dry-run", "--json",
                      "--pretrained", "none", "--epochs", "1", "--model", "cnn", "--frames", "3"]) == 0
     first = capsys.readouterr().err.splitlines()[0]
-    assert "using the cpu preset" in first
+    assert "using the cpu config" in first
     assert "cnn, windows of 3 frames" in first and "backbone from random weights" in first
     assert "trained for 1 epoch " in first and "pretrained on single frames" not in first
     assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "r"), "--dry-run", "--json",
