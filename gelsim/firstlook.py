@@ -47,10 +47,10 @@ def first_look_frames(fabrics=FABRICS, profile: str | Path | SensorProfile = "vi
 
     prof = profile if isinstance(profile, SensorProfile) else load_profile(profile)
     prof = prof.with_resolution(*RESOLUTION)
-    flat, _ = render_frame(make_object(None, "sphere", 4.0), prof, fidelity, force_n=0.0, seed=seed)
+    flat, _ = render_frame(make_object(None, "sphere", None), prof, fidelity, force_n=0.0, seed=seed)
     out = []
     for fid in fabrics:
-        obj = make_object(int(fid), None, 4.0)
+        obj = make_object(int(fid), None, None)
         rgb, info = render_frame(obj, prof, fidelity, force_n=force_n, seed=seed)
         diff, gain = stretched_difference(rgb, flat)
         out.append({"fabric": int(fid), "name": obj.fabric.name, "family": obj.fabric.family, "frame": rgb,

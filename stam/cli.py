@@ -112,7 +112,7 @@ def _train(args) -> int:
     from .errors import StamError
 
     load_manifest(args.data)        # a bad --data is said before anything else (the config's note)
-    if args.pretrained and args.pretrained != "none" and not Path(args.pretrained).is_file():
+    if args.pretrained and args.pretrained != "none" and not args.dry_run and not Path(args.pretrained).is_file():
         raise StamError(f"--pretrained {args.pretrained} not found; give the backbone.pt of `stam pretrain`, or none")
     overrides = {"model": args.model, "frames": args.frames, "start": args.start, "epochs": args.epochs,
                  "seed": args.seed}

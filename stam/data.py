@@ -106,6 +106,19 @@ def load_manifest(data_dir: str | Path) -> dict:
     return schema.load_manifest(data_dir, complete=True, error=StamError)
 
 
+_said: set[str] = set()
+
+
+def _say_once(line: str) -> None:
+    """``line`` on stderr once per process, when a person watches (stderr a terminal): what a first run does
+    before its first epoch (a dataset of 2,000 sequences takes minutes to decode)."""
+    import sys
+
+    if line not in _said and sys.stderr.isatty():
+        _said.add(line)
+        print(line, file=sys.stderr, flush=True)
+
+
 def _writable(d: Path) -> bool:
     """Whether files can be written in folder ``d``, or in the folder that would hold it (``d`` is made
     when the first file is cached: a command that stops before leaves nothing behind)."""
@@ -282,6 +295,7 @@ class TactileDataset:
         from gelsim.video import read_video
 
         self.check_video(seq)
+        _say_once(f"stam: decoding {self.dir}'s videos into the frame cache {self.cache_dir} (first read of each only) ...")
         frames = read_video(seq.video)
         if frames.shape[0] < 1:
             raise StamError(f"video {seq.video} has no frames; regenerate the dataset")

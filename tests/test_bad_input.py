@@ -32,6 +32,7 @@ TABLE: dict[str, list[tuple[list[str], str]]] = {
         (["--indenter", "{bad_npz}.stl", "--out", "x.png"], "not found"),
         (["--diameter-mm", "0", "--out", "x.png"], "diameter_mm"),
         (["--diameter-mm", "1e9", "--out", "x.png"], "diameter up to"),
+        (["--fabric", "21", "--diameter-mm", "6", "--out", "x.png"], "would change nothing"),  # an option doing nothing
         (["--profile", "nosuch", "--out", "x.png"], "unknown sensor profile"),
         (["--backend", "opengl", "--out", "x.png"], "--backend"),
         (["--device", "cuda", "--out", "x.png"], "--device"),
@@ -47,6 +48,7 @@ TABLE: dict[str, list[tuple[list[str], str]]] = {
         (["--force-n", "1", "--indenter", "{bad_npz}"], "unknown indenter"),
         (["--force-n", "1", "--indenter", "cylinder", "--length-mm", "-2"], "length_mm"),
         (["--force-n", "1", "--indenter", "cylinder", "--angle-deg", "inf"], "angle_deg"),
+        (["--force-n", "1", "--length-mm", "3"], "not for --indenter sphere"),     # an option doing nothing
         (["--force-n", "1", "--profile", "{missing}.toml"], "not found"),
         (["--force-n", "1", "--fidelity", "ultra"], "--fidelity"),
         (["--force-n", "1", "--resolution-px", "4"], "out of range for vitac"),

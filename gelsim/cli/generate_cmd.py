@@ -22,9 +22,10 @@ def register(sub) -> None:
             "per sequence, per-frame labels and DIR/manifest.json. Deterministic: each sequence has its own\n"
             "seed, so the output is the same for any --workers. Interrupted (Ctrl-C, kill -9), rerun the same\n"
             "command to finish without redoing finished sequences.\n\n"
-            "Presets: quick = 10 fabrics x 3 sequences at 320x240, fast (6-15 s on 2 cores; `make demo`);\n"
+            "Presets: quick = 10 fabrics x 4 sequences at 320x240, fast, split 2:1:1 (`make demo`; a test split\n"
+            "                 for `stam train --config quick` and `stam evaluate`; docs/quickstart.md);\n"
             "         cpu   = 100 fabrics x 20 sequences at 320x240, balanced, split 7:2:11 (sized for\n"
-            "                 `stam experiment --preset cpu`: 1,100 test sequences resolve a few points;\n"
+            "                 `stam experiment --config cpu`: 1,100 test sequences resolve a few points;\n"
             "                 13 min on 2 cores). With --resolution 960x720, the camera's own frames: about\n"
             "                 2.5x the time, and every Tables I/II cell 11-19 points higher (docs/stam_results.md).\n"
             "Options given with a preset override it."),
@@ -49,7 +50,7 @@ def register(sub) -> None:
                         "(docs/nuisance.md) [default: none]")
     p.add_argument("--nuisance-severity", metavar="S", type=float,
                    help="every stage of --nuisance's level at severity S: 0 off, 1 the data file's, up to 4 "
-                        "(a sweep's knob) [default: the level's]")
+                        "(a sweep's knob); only with a --nuisance level other than none [default: the level's]")
     p.add_argument("--profile", metavar="NAME|PATH", help="sensor profile [default: vitac, 960x720]")
     p.add_argument("--resolution", metavar="WxH", help="render at this size, same field of view in mm [default: the profile's]")
     p.add_argument("--fidelity", choices=["fast", "balanced", "reference"], help="speed/accuracy level [default: balanced]")
@@ -71,7 +72,8 @@ def register(sub) -> None:
                    help="with --backend torch: frames rendered at once; the output is the same bytes for any "
                         f"batch [default: {DEFAULT_BATCH}]")
     p.add_argument("--seed", type=seed_arg, metavar="N", help="dataset seed [default: 0]")
-    p.add_argument("--workers", type=int, metavar="N", default=None, help="worker processes [default: all cores]")
+    p.add_argument("--workers", type=int, metavar="N", default=None,
+                   help="worker processes, 1 to this machine's cores [default: all cores]")
     p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
                    help="run each sequence as a Ray task: alone, on a Ray instance started on this machine "
                         "(--workers CPUs); 'auto', on the cluster `ray start` made here; HOST:PORT, on that "

@@ -21,11 +21,12 @@ def register(sub) -> None:
     )
     p.add_argument("--indenter", default="sphere", metavar="sphere|cylinder|PATH",
                    help="indenter: sphere, cylinder (on its side) or a mesh file (.stl/.obj, units mm)")
-    p.add_argument("--diameter-mm", type=float, default=4.0,
-                   help="sphere or cylinder diameter, mm (ignored for meshes)")
+    p.add_argument("--diameter-mm", type=float, default=None,
+                   help="sphere or cylinder diameter, mm (default 4; not for a mesh)")
     p.add_argument("--length-mm", type=float, default=None,
                    help="cylinder length, mm [default: longer than the field of view]")
-    p.add_argument("--angle-deg", type=float, default=0.0, help="cylinder axis angle from +x towards +y, degrees")
+    p.add_argument("--angle-deg", type=float, default=None,
+                   help="cylinder axis angle from +x towards +y, degrees [default: 0]")
     p.add_argument("--force-n", type=float, required=True, help="normal force, N (> 0)")
     p.add_argument("--profile", default="vitac", metavar="NAME|PATH", help="sensor profile")
     p.add_argument("--fidelity", default="reference", choices=["fast", "balanced", "reference"],
@@ -44,9 +45,21 @@ def run_press(args: argparse.Namespace) -> int:
     from . import say_first_run
 
     say_first_run("gelsim press")
+    from ..errors import GelsimError
+    from .render_cmd import DEFAULT_DIAMETER_MM
+
     sized = args.indenter in ("sphere", "cylinder")
-    obj = indenter(args.indenter, diameter_mm=args.diameter_mm if sized else None, length_mm=args.length_mm,
-                   angle_deg=args.angle_deg)
+    unused = [name for name, value, fits in (("--diameter-mm", args.diameter_mm, sized),
+                                             ("--length-mm", args.length_mm, args.indenter == "cylinder"),
+                                             ("--angle-deg", args.angle_deg, args.indenter == "cylinder"))
+              if value is not None and not fits]
+    if unused:   # it would change nothing
+        raise GelsimError(f"{', '.join(unused)} not for --indenter {args.indenter}: drop "
+                          f"{'it' if len(unused) == 1 else 'them'} (--diameter-mm: sphere or cylinder; --length-mm "
+                          "and --angle-deg: cylinder)")
+    diameter = DEFAULT_DIAMETER_MM if args.diameter_mm is None else args.diameter_mm
+    obj = indenter(args.indenter, diameter_mm=diameter if sized else None, length_mm=args.length_mm,
+                   angle_deg=0.0 if args.angle_deg is None else args.angle_deg)
     rep = press_report(obj, args.force_n, profile=args.profile, fidelity=args.fidelity,
                        resolution_px=args.resolution_px)
     from . import warn_if_bottomed

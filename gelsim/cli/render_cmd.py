@@ -18,7 +18,8 @@ def register(subparsers) -> None:
                       help="fabric id from `gelsim fabrics list` (default: an indenter)")
     what.add_argument("--indenter", default=None, metavar="sphere|cylinder|PATH.stl",
                       help="indenter shape or mesh file (default: sphere when no --fabric)")
-    p.add_argument("--diameter-mm", type=float, default=4.0, help="sphere or cylinder diameter, mm")
+    p.add_argument("--diameter-mm", type=float, default=None,
+                   help="sphere or cylinder diameter, mm (default 4; not for a fabric or a mesh)")
     how = p.add_mutually_exclusive_group()
     how.add_argument("--force-n", type=float, default=None,
                      help=f"normal force, N (default {DEFAULT_FORCE_N} when --depth-mm is not given)")
@@ -37,10 +38,22 @@ def register(subparsers) -> None:
     p.set_defaults(handler=run)
 
 
-def make_object(fabric: int | None, indenter: str | None, diameter_mm: float):
-    """The touched object the options name: catalog fabric ``fabric``, or the indenter (sphere by default)."""
+#: The sphere's or cylinder's diameter when none is given, mm.
+DEFAULT_DIAMETER_MM = 4.0
+
+
+def make_object(fabric: int | None, indenter: str | None, diameter_mm: float | None):
+    """The touched object the options name: catalog fabric ``fabric``, or the indenter (sphere by default).
+    ``diameter_mm`` (None: DEFAULT_DIAMETER_MM) is for a sphere or cylinder only: given with a fabric or a
+    mesh it would change nothing, and is refused."""
+    from ..errors import GelsimError
     from ..scene import FabricObject, indenter as make_indenter
 
+    sized = fabric is None and (indenter or "sphere") in ("sphere", "cylinder")
+    if diameter_mm is not None and not sized:
+        raise GelsimError("--diameter-mm is for --indenter sphere or cylinder, and would change nothing here; "
+                          "drop it")
+    diameter_mm = DEFAULT_DIAMETER_MM if diameter_mm is None else diameter_mm
     if fabric is not None:
         from ..fabrics import load_catalog
 

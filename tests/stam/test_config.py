@@ -92,7 +92,7 @@ def test_train_without_preset_picks_by_cuda_and_says_so(synth, tmp_path, capsys,
                                                  if k not in ("data", "out", "preset", "pretrained", "progress")}}
     assert res["config"]["pretrained"] == str(tmp_path / "r" / "pretrain" / "backbone.pt")
     note = cap.err.strip().splitlines()
-    assert len(note) == 1 and f"using the {expected} preset" in note[0]
+    assert len(note) == 1 and f"using the {expected} config" in note[0]
     # An explicit preset is used as given, silently.
     assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "r"), "--dry-run", "--json",
                      "--preset", "paper" if expected == "cpu" else "cpu"]) == 0
