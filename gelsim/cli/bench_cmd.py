@@ -123,7 +123,9 @@ def run_bench_cmd(args) -> int:
 
 def _run_bench(args, cfgs) -> int:
     from .. import bench
-    from . import print_result
+    from . import print_result, say_first_run
+
+    say_first_run("gelsim bench")
 
     def say(line: str) -> None:
         if not args.json:

@@ -96,7 +96,9 @@ def run_texture(args) -> int:
     from ..runtime import configure_worker
     from ..sensor import load_profile
     from ..texture import crop_at, texture_budget
-    from . import print_json
+    from . import print_json, say_first_run
+
+    say_first_run("gelsim texture")
 
     configure_worker()
     cat = load_catalog()
