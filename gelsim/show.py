@@ -204,9 +204,21 @@ LABEL_PANELS = (
 )
 
 
+def varying_nuisance(record: dict | None, count: int) -> dict[str, np.ndarray]:
+    """The numeric per-frame arrays (``count`` rows, 1-D or 2-D) of a nuisance record that change over the
+    sequence: the stages that did something (a dataset may hold a record of constant "nothing applied" rows
+    for every sequence, with no level or where a stage did nothing)."""
+    out = {}
+    for key, value in (record or {}).items():
+        v = np.asarray(value)
+        if v.ndim in (1, 2) and len(v) == count and np.issubdtype(v.dtype, np.number) and np.ptp(v, axis=0).max() > 0:
+            out[key] = v.astype(float)
+    return out
+
+
 def labels_figure(look: SequenceLook, path: Path) -> Path:
-    """Write the labels over time (:data:`LABEL_PANELS`, and the nuisance record's per-frame values when
-    there is one) to ``path`` (PNG, atomically)."""
+    """Write the labels over time (:data:`LABEL_PANELS`, and a panel per nuisance record value that changes
+    over the sequence, :func:`varying_nuisance`) to ``path`` (PNG, atomically)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -216,9 +228,8 @@ def labels_figure(look: SequenceLook, path: Path) -> Path:
 
     lab, count = look.labels, len(look.frames)
     panels = [p for p in LABEL_PANELS if any(key in lab for key, _, _ in p[2])]
-    nuisance = {k: np.asarray(v, float) for k, v in (look.nuisance or {}).items()
-                if np.asarray(v).ndim in (1, 2) and len(v) == count and np.issubdtype(np.asarray(v).dtype, np.number)}
-    rows = len(panels) + (1 if nuisance else 0)
+    nuisance = varying_nuisance(look.nuisance, count)
+    rows = len(panels) + len(nuisance)
     fig, axes = plt.subplots(rows, 1, figsize=(8, 1.6 * rows + 0.8), sharex=True, squeeze=False)
     t = np.arange(count)
     for ax, (title, unit, lines) in zip(axes[:, 0], panels):
@@ -229,16 +240,14 @@ def labels_figure(look: SequenceLook, path: Path) -> Path:
         ax.set_ylabel(f"{title}\n({unit})", fontsize=8)
         if len(lines) > 1:
             ax.legend(fontsize=7, loc="upper right")
-    if nuisance:
-        ax = axes[-1, 0]
-        for key, v in nuisance.items():
-            if v.ndim == 1:
-                ax.plot(t, v, label=key, lw=1.5)
-            else:
-                for c in range(min(v.shape[1], 3)):
-                    ax.plot(t, v[:, c], label=f"{key}[{c}]", lw=1.2)
-        ax.set_ylabel("nuisance\napplied", fontsize=8)
-        ax.legend(fontsize=6, loc="upper right")
+    for ax, (key, v) in zip(axes[len(panels):, 0], nuisance.items()):
+        if v.ndim == 1:
+            ax.plot(t, v, lw=1.5, color="tab:purple")
+        else:
+            for c in range(v.shape[1]):
+                ax.plot(t, v[:, c], lw=1.2, label="RGB"[c] if v.shape[1] == 3 else f"[{c}]")
+            ax.legend(fontsize=7, loc="upper right")
+        ax.set_ylabel(f"nuisance:\n{key}", fontsize=8)
     slipping = np.asarray(lab.get("slipping", np.zeros(count, bool)), bool)
     for ax in axes[:, 0]:
         if look.onset is not None:
@@ -250,6 +259,8 @@ def labels_figure(look: SequenceLook, path: Path) -> Path:
     s = look.sequence
     onset = "no contact" if look.onset is None else f"contact from frame {look.onset} (dashed)"
     extra = "; slipping frames shaded" if slipping.any() else ""
+    if look.nuisance is not None and not nuisance:
+        extra += "; nuisance record: nothing applied"
     fig.suptitle(f"{s['id']}: {s.get('action', '')} on fabric {s.get('fabric_id')}, {onset}{extra}", fontsize=9)
     fig.tight_layout()
     return write_figure(path, fig, dpi=100)

@@ -60,26 +60,30 @@ def test_show_defaults_to_a_sequence_in_contact_and_a_folder_in_the_dataset(tiny
                                                                                  "labels.png")]
 
 
-def test_a_nuisance_record_gets_its_panel(tiny, tmp_path):
-    """Where the dataset holds a per-frame nuisance record of the sequence (``nuisance/<id>.npz``), its
-    per-frame values are drawn under the labels; without one there is no such panel."""
-    from gelsim.show import labels_figure, nuisance_record
+def test_a_nuisance_record_gets_a_panel_per_value_that_changes(tiny, tmp_path):
+    """Where the dataset holds a per-frame nuisance record of the sequence (``nuisance/fNNN/<id>.npz``, the
+    manifest entry's ``nuisance``), each of its per-frame values that changes over the sequence gets a panel
+    under the labels; constant "nothing applied" rows and values not per frame get none."""
+    from gelsim.show import labels_figure, nuisance_record, varying_nuisance
 
     seq = load_manifest(tiny)["sequences"][0]
     plain = labels_figure(load_look(tiny, seq["id"]), tmp_path / "plain.png")
-    (tiny / "nuisance").mkdir()
+    folder = tiny / "nuisance" / f"f{seq['fabric_id']:03d}"
+    folder.mkdir(parents=True)
     try:
         t = seq["num_frames"]
-        np.savez(tiny / "nuisance" / f"{seq['id']}.npz", gains=np.linspace(0.2, 1.0, 3 * t).reshape(t, 3),
-                 exposure=np.linspace(0.1, 1.0, t), note=np.array("not per frame"))
+        np.savez(folder / f"{seq['id']}.npz", gains=np.linspace(0.2, 1.0, 3 * t).reshape(t, 3).astype(np.float32),
+                 stream_age_frames=np.arange(t, dtype=np.int32), fibres_touching=np.zeros(t, np.int32),
+                 note=np.array("not per frame"))
         rec = nuisance_record(tiny, seq)
-        assert set(rec) == {"gains", "exposure", "note"}
-        look = load_look(tiny, seq["id"])
-        with_record = labels_figure(look, tmp_path / "with.png")
-        assert _png(with_record).shape[0] > _png(plain).shape[0]      # one more panel
+        assert set(rec) == {"gains", "stream_age_frames", "fibres_touching", "note"}
+        assert set(varying_nuisance(rec, t)) == {"gains", "stream_age_frames"}
+        with_record = labels_figure(load_look(tiny, seq["id"]), tmp_path / "with.png")
+        assert _png(with_record).shape[0] > _png(plain).shape[0] + 200     # two more panels
     finally:
-        for p in (tiny / "nuisance").iterdir():
+        for p in folder.iterdir():
             p.unlink()
+        folder.rmdir()
         (tiny / "nuisance").rmdir()
 
 
