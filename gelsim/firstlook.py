@@ -112,18 +112,32 @@ def panels(look: dict, scale: float = 1.0) -> np.ndarray:
     return np.concatenate([left, right], axis=1)
 
 
+def nuisance_shown(root: Path, sequence: dict) -> list[str]:
+    """The values of ``sequence``'s per-frame nuisance record (:func:`gelsim.show.nuisance_record`) that change
+    over its first :data:`NUISANCE_FRAMES` frames: what a level did there (empty without a record)."""
+    from .show import nuisance_record, varying_nuisance
+
+    record = nuisance_record(root, sequence) or {}
+    n = min(NUISANCE_FRAMES, int(sequence["num_frames"]))
+    first = {k: np.asarray(v)[:n] for k, v in record.items()
+             if np.asarray(v).ndim in (1, 2) and len(v) == sequence["num_frames"]}
+    return sorted(varying_nuisance(first, n))
+
+
 def nuisance_rows(root: Path, manifest: dict, flat) -> np.ndarray | None:
     """With a nuisance level (the manifest's options): uint8 RGB rows :data:`RESOLUTION`'s half width
-    wide showing the first :data:`NUISANCE_FRAMES` frames of the dataset's sequence with the most frames
-    before contact, as the dataset holds them and minus the flat gel (``flat(sequence)``: uint8 (H, W, 3)),
-    captioned; None without a level."""
+    wide showing the first :data:`NUISANCE_FRAMES` frames of one sequence, as the dataset holds them and
+    minus the flat gel (``flat(sequence)``: uint8 (H, W, 3)), captioned; None without a level. The sequence
+    is the first whose nuisance record changes most over those frames (:func:`nuisance_shown`: a level may
+    touch few recordings), then the one with the most frames before contact."""
     level = (manifest.get("options") or {}).get("nuisance") or "none"
     seqs = [s for s in manifest.get("sequences", []) if "video" in s]
     if level == "none" or not seqs:
         return None
     from .video import read_video
 
-    seq = max(seqs, key=lambda s: s.get("precontact_frames") or 0)   # the first of the most
+    shown = {s["id"]: nuisance_shown(root, s) for s in seqs}
+    seq = max(seqs, key=lambda s: (len(shown[s["id"]]), s.get("precontact_frames") or 0))   # the first of the most
     frames = read_video(Path(root) / seq["video"])[:NUISANCE_FRAMES]
     diffs, gains = stretched_differences(frames, flat(seq))
     width = RESOLUTION[0] // NUISANCE_FRAMES   # the sheet's: two half-scale panels side by side
@@ -134,6 +148,8 @@ def nuisance_rows(root: Path, manifest: dict, flat) -> np.ndarray | None:
     for t, (f, d, gain) in enumerate(zip(frames, diffs, gains)):
         state = "before contact" if onset is None or onset < 0 or t < onset else "contact"
         head = [f"{seq['id']} with {what}"] if t == 0 else []
+        if t == 1 and shown[seq["id"]]:
+            head = ["record: " + ", ".join(shown[seq["id"]])]
         top.append(caption(tile(f, width), head + [f"frame {t}, {state}"]))
         bottom.append(caption(tile(d, width), [f"minus the flat gel x{gain:.0f}"]))
     return np.concatenate([np.concatenate(top, axis=1), np.concatenate(bottom, axis=1)], axis=0)

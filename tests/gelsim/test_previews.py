@@ -190,8 +190,38 @@ def test_a_nuisance_level_shows_in_the_first_look(tiny, tmp_path):
     tile_h = round(72 * (w // NUISANCE_FRAMES) / 96)
     assert noisy.shape == (clean.shape[0] + 2 * tile_h, w, 3)
     assert np.array_equal(noisy[:clean.shape[0]], clean)          # the fabrics' rows are the same
-    first = noisy[clean.shape[0] + 40:clean.shape[0] + tile_h, :w // NUISANCE_FRAMES]
-    assert first.mean() < 0.5 * clean[:, : w // 2].mean()        # the exposure starts dark
+    assert not np.array_equal(noisy[clean.shape[0]:clean.shape[0] + tile_h],
+                              noisy[clean.shape[0] + tile_h:])         # frames above, differences below
+
+
+def test_the_first_look_shows_a_sequence_its_nuisance_record_says_was_touched(tiny):
+    """A level may touch few recordings: the first look's nuisance rows show the sequence whose per-frame
+    record changes most over its first frames."""
+    from gelsim.annotate import dataset_flat_frame, tile
+    from gelsim.firstlook import NUISANCE_FRAMES, RESOLUTION, nuisance_rows, nuisance_shown
+    from gelsim.video import read_video
+
+    m = load_manifest(tiny)
+    assert nuisance_rows(tiny, m, lambda s: dataset_flat_frame(m, s)) is None          # no level, no rows
+    noisy = {**m, "options": {**m["options"], "nuisance": "handheld"}}
+    seq = m["sequences"][-1]
+    folder = tiny / "nuisance" / f"f{seq['fabric_id']:03d}"
+    folder.mkdir(parents=True)
+    try:
+        t = seq["num_frames"]
+        np.savez(folder / f"{seq['id']}.npz", gains=np.linspace(0.3, 1.0, 3 * t).reshape(t, 3).astype(np.float32),
+                 fibres_touching=np.zeros(t, np.int32))
+        assert nuisance_shown(tiny, seq) == ["gains"] and nuisance_shown(tiny, m["sequences"][0]) == []
+        rows = nuisance_rows(tiny, noisy, lambda s: dataset_flat_frame(m, s))
+        width = RESOLUTION[0] // NUISANCE_FRAMES
+        expected = tile(read_video(tiny / seq["video"])[NUISANCE_FRAMES - 1], width)
+        last = rows[:expected.shape[0], (NUISANCE_FRAMES - 1) * width:]
+        assert np.array_equal(last[40:], expected[40:])                # below its caption: that sequence's frame
+    finally:
+        for p in folder.iterdir():
+            p.unlink()
+        folder.rmdir()
+        (tiny / "nuisance").rmdir()
 
 
 def test_the_first_look_is_rendered_once_per_machine(tmp_path, monkeypatch):
