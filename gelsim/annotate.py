@@ -1,6 +1,6 @@
-"""Pictures of tactile frames for people: captions, the frame minus the flat gel, marker arrows, and the flat
-gel of a dataset's sensor. Shared by the previews (:mod:`gelsim.previews`), the first look
-(:mod:`gelsim.firstlook`) and ``gelsim show`` (:mod:`gelsim.show`).
+"""Pictures of tactile frames for people: captions, the frame minus the flat gel, marker arrows, the flat gel
+of a sensor, and what a dataset's per-frame nuisance record holds. Shared by the previews
+(:mod:`gelsim.previews`), the first look (:mod:`gelsim.firstlook`) and ``gelsim show`` (:mod:`gelsim.show`).
 
 A camera frame holds a few DN of texture on a grey gel; what the contact changed shows when the flat gel's
 frame (same sensor unit, markers at rest) is taken away and the rest stretched to the full range.
@@ -139,33 +139,57 @@ def arrow_gain(displacements_px: np.ndarray) -> float:
     return ARROW_LONGEST_PX / longest if longest > 1e-6 else 1.0
 
 
-def dataset_flat_frame(manifest: dict, sequence: dict | None = None) -> np.ndarray:
-    """The flat gel of a dataset's sensor as its frames show it: uint8 RGB (H, W, 3) at the dataset's
-    resolution, markers at rest, no noise, rendered from the manifest's options (profile, resolution,
-    fidelity, seed) for ``sequence``'s sensor unit (its manifest entry; None or no ``unit``: the profile
-    itself). The numpy backend renders it whatever backend made the data (the flat gel is the same
-    within its tolerance)."""
-    import dataclasses
-
-    from .dataset import GenerateConfig, resolve_profile, unit_profiles
+def flat_frame(profile, fidelity: str, seed: int) -> np.ndarray:
+    """The flat gel of sensor ``profile`` as a dataset made at ``fidelity`` (its supersampling) with sensor seed
+    ``seed`` shows it: uint8 RGB (H, W, 3), markers at rest, no noise. The numpy backend renders it whatever
+    backend made the data (the flat gel is the same within its tolerance). A dataset's sensor, unit by unit:
+    :func:`gelsim.dataset.dataset_flat_frame`."""
     from .fidelity import get_fidelity
     from .markers import rest_markers
     from .optics import Renderer
 
-    known = {f.name for f in dataclasses.fields(GenerateConfig)}
-    opts = {k: tuple(v) if isinstance(v, list) else v for k, v in manifest.get("options", {}).items() if k in known}
-    config = GenerateConfig(**opts)
-    profile = resolve_profile(config)
-    unit = int((sequence or {}).get("unit", -1))
-    if unit >= 0:
-        profile = unit_profiles(config, profile)[unit]
-    fid = get_fidelity(config.fidelity)
-    renderer = Renderer(profile, "fast", supersample=fid.supersample, seed=config.seed)
+    renderer = Renderer(profile, "fast", supersample=get_fidelity(fidelity).supersample, seed=seed)
     try:
-        markers = rest_markers(profile, seed=config.seed) if profile.markers.enabled else None
+        markers = rest_markers(profile, seed=seed) if profile.markers.enabled else None
         return renderer.render(None, markers, noise=False)
     finally:
         renderer.close()
+
+
+#: Where a dataset keeps a per-frame nuisance record of a sequence, relative to its root, tried after the
+#: manifest entry's own ``nuisance`` path (``{fabric:03d}`` as in the labels' folders).
+NUISANCE_PATHS = ("nuisance/f{fabric:03d}/{id}.npz", "nuisance/{id}.npz")
+
+
+def nuisance_record(root: Path, sequence: dict) -> dict | None:
+    """The per-frame nuisance record of ``sequence`` (key -> array with one row per frame), read from the
+    manifest entry's ``nuisance`` path or :data:`NUISANCE_PATHS`; None when the dataset has none."""
+    from .errors import GelsimError
+
+    root = Path(root)
+    names = ([sequence["nuisance"]] if isinstance(sequence.get("nuisance"), str) else []) + \
+            [p.format(id=sequence["id"], fabric=sequence["fabric_id"]) for p in NUISANCE_PATHS]
+    path = next((root / n for n in names if (root / n).is_file()), None)
+    if path is None:
+        return None
+    try:
+        with np.load(path) as z:
+            return {k: np.asarray(z[k]) for k in z.files}
+    except Exception as e:  # an unreadable record is said, not a traceback
+        raise GelsimError(f"cannot read the nuisance record {path} ({type(e).__name__}); regenerate the dataset "
+                          "or move the file away") from None
+
+
+def varying_nuisance(record: dict | None, count: int) -> dict[str, np.ndarray]:
+    """The numeric per-frame arrays (``count`` rows, 1-D or 2-D) of a nuisance record that change over the
+    sequence: the stages that did something (a dataset may hold a record of constant "nothing applied" rows
+    for every sequence, with no level or where a stage did nothing)."""
+    out = {}
+    for key, value in (record or {}).items():
+        v = np.asarray(value)
+        if v.ndim in (1, 2) and len(v) == count and np.issubdtype(v.dtype, np.number) and np.ptp(v, axis=0).max() > 0:
+            out[key] = v.astype(float)
+    return out
 
 
 def tile(img: np.ndarray, width: int) -> np.ndarray:

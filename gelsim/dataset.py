@@ -285,6 +285,22 @@ def unit_seed(seed: int, unit: int) -> int:
     return int(np.random.SeedSequence([seed, unit, 0x0D17]).generate_state(1)[0])
 
 
+def dataset_flat_frame(manifest: dict, sequence: dict | None = None):
+    """The flat gel of a dataset's sensor as its frames show it (:func:`gelsim.annotate.flat_frame`): uint8 RGB
+    (H, W, 3) at the dataset's resolution, rendered from the manifest's options for ``sequence``'s sensor unit
+    (its manifest entry; None or no ``unit``: the profile itself)."""
+    from .annotate import flat_frame
+
+    known = {f.name for f in dataclasses.fields(GenerateConfig)}
+    opts = {k: tuple(v) if isinstance(v, list) else v for k, v in manifest.get("options", {}).items() if k in known}
+    config = GenerateConfig(**opts)
+    profile = resolve_profile(config)
+    unit = int((sequence or {}).get("unit", -1))
+    if unit >= 0:
+        profile = unit_profiles(config, profile)[unit]
+    return flat_frame(profile, config.fidelity, config.seed)
+
+
 def unit_profiles(config: GenerateConfig, profile) -> list:
     """The ``config.units`` sensor units drawn from ``profile`` (empty for units = 0)."""
     from .units import draw_unit
@@ -994,7 +1010,7 @@ def _generate_in(config, root: Path, catalog, profile, specs, workers, progress,
     if previews:
         from .previews import write_previews
 
-        write_previews(root, manifest)
+        write_previews(root, manifest, lambda sequence: dataset_flat_frame(manifest, sequence))
     atomic_write_json(root / schema.MANIFEST, manifest)
     if previews and manifest["complete"]:
         from .stats import write_stats

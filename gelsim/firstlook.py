@@ -113,9 +113,9 @@ def panels(look: dict, scale: float = 1.0) -> np.ndarray:
 
 
 def nuisance_shown(root: Path, sequence: dict) -> list[str]:
-    """The values of ``sequence``'s per-frame nuisance record (:func:`gelsim.show.nuisance_record`) that change
-    over its first :data:`NUISANCE_FRAMES` frames: what a level did there (empty without a record)."""
-    from .show import nuisance_record, varying_nuisance
+    """The values of ``sequence``'s per-frame nuisance record (:func:`gelsim.annotate.nuisance_record`) that
+    change over its first :data:`NUISANCE_FRAMES` frames: what a level did there (empty without a record)."""
+    from .annotate import nuisance_record, varying_nuisance
 
     record = nuisance_record(root, sequence) or {}
     n = min(NUISANCE_FRAMES, int(sequence["num_frames"]))

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from . import annotate
-from .annotate import caption, dataset_flat_frame, stretched_difference, stretched_differences
+from .annotate import caption, stretched_difference, stretched_differences
 from .atomic import write_png
 from .crop import STAM_CPU_CROP, crop_box_px
 from .errors import GelsimError
@@ -54,32 +54,33 @@ def centre_crop(frame: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 class FlatFrames:
-    """The flat gel of each sensor unit of a dataset (:func:`gelsim.annotate.dataset_flat_frame`), rendered
-    once per unit."""
+    """The flat gel of each sensor unit of a dataset, ``flat(sequence)`` (uint8 (H, W, 3); the dataset's:
+    :func:`gelsim.dataset.dataset_flat_frame`) called once per unit."""
 
-    def __init__(self, manifest: dict):
-        self.manifest = manifest
+    def __init__(self, flat):
+        self.flat = flat
         self._flat: dict[int, np.ndarray] = {}
 
     def __call__(self, sequence: dict) -> np.ndarray:
         unit = int(sequence.get("unit", -1))
         if unit not in self._flat:
-            self._flat[unit] = dataset_flat_frame(self.manifest, sequence)
+            self._flat[unit] = self.flat(sequence)
         return self._flat[unit]
 
 
-def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Path]:
+def write_previews(root: Path, manifest: dict, flat, *, tile_px: int = 160) -> list[Path]:
     """Write ``previews/<action>.png`` strips (frames above, each minus the flat gel below),
     ``previews/contact_sheet.png`` (per fabric, its peak-force frame scaled to ``tile_px`` wide, above the
     same minus the flat gel) and ``previews/texture_sheet.png`` (the same frames' central ``tile_px`` x 3/4
     ``tile_px`` pixels at their own scale, above their difference: a 960x720 frame's fine weaves vanish when
     the whole frame is scaled to 160 px), then the first look (:func:`gelsim.firstlook.write_first_look`);
-    returns the paths."""
+    returns the paths. ``flat(sequence)``: the flat gel of ``sequence``'s sensor, uint8 (H, W, 3) (the
+    dataset's: :func:`gelsim.dataset.dataset_flat_frame`)."""
     root = Path(root)
     out_dir = root / PREVIEWS_DIR
     out_dir.mkdir(exist_ok=True)
     seqs = [s for s in manifest["sequences"] if "video" in s]
-    flats = FlatFrames(manifest)
+    flats = FlatFrames(flat)
     written = []
     for action in ACTIONS:
         s = next((s for s in seqs if s["action"] == action), None)

@@ -3,14 +3,15 @@
 :func:`show` writes into a folder:
 
 * ``frames.png``: evenly spaced frames, each as the dataset holds it and below it the same frame minus the
-  flat gel of the dataset's sensor (:func:`gelsim.annotate.dataset_flat_frame`), contrast stretched (each
+  flat gel of the dataset's sensor (:func:`gelsim.dataset.dataset_flat_frame`), contrast stretched (each
   frame's gain in its caption);
 * ``markers.png``: the markers' displacement from rest as arrows (magnified, the magnification in the
   caption) over the frame minus the flat gel, at the first contact frame and the frames of peak force,
   shear and twist;
 * ``labels.png``: the labels over time: normal and tangential force (N), shear (mm), twist (degrees),
   contact area (mm^2), the contact onset and the slipping frames marked; and the nuisance applied to each
-  frame when the dataset has a per-frame nuisance record for the sequence (:func:`nuisance_record`);
+  frame when the dataset has a per-frame nuisance record for the sequence
+  (:func:`gelsim.annotate.nuisance_record`);
 * ``video.mp4`` (``video=True``): the sequence slowed down, each frame beside its difference with the
   marker arrows and the labels written on it.
 """
@@ -22,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .annotate import (arrow_gain, caption, dataset_flat_frame, draw_arrows, read_frames, stretched_differences,
-                       tile)
+from .annotate import (arrow_gain, caption, draw_arrows, nuisance_record, read_frames, stretched_differences, tile,
+                       varying_nuisance)
 from .errors import GelsimError
 
 #: Frames in the strip of ``frames.png`` (the first, the last, and evenly between).
@@ -36,11 +37,6 @@ PANEL_MIN_PX = 480
 #: Playback rate of ``video.mp4``, frames per second: the 30 Hz camera slowed about three times, so
 #: that a 1 s press lasts long enough to follow.
 VIDEO_FPS = 10.0
-#: Where a dataset keeps a per-frame nuisance record of a sequence, relative to its root, tried in
-#: order (``{fabric:03d}`` as in the labels' folders).
-NUISANCE_PATHS = ("nuisance/{id}.npz", "nuisance/f{fabric:03d}/{id}.npz")
-
-
 @dataclass(frozen=True)
 class SequenceLook:
     """What :func:`show` draws of one sequence: its manifest entry, uint8 RGB ``frames`` (T, H, W, 3), its
@@ -61,26 +57,10 @@ class SequenceLook:
         return None if onset is None or onset < 0 else int(onset)
 
 
-def nuisance_record(root: Path, sequence: dict) -> dict | None:
-    """The per-frame nuisance record of ``sequence`` (key -> array with one row per frame), read from the
-    manifest entry's ``nuisance`` path or :data:`NUISANCE_PATHS`; None when the dataset has none."""
-    root = Path(root)
-    names = ([sequence["nuisance"]] if isinstance(sequence.get("nuisance"), str) else []) + \
-            [p.format(id=sequence["id"], fabric=sequence["fabric_id"]) for p in NUISANCE_PATHS]
-    path = next((root / n for n in names if (root / n).is_file()), None)
-    if path is None:
-        return None
-    try:
-        with np.load(path) as z:
-            return {k: np.asarray(z[k]) for k in z.files}
-    except Exception as e:  # an unreadable record is said, not a traceback
-        raise GelsimError(f"cannot read the nuisance record {path} ({type(e).__name__}); regenerate the dataset "
-                          "or move the file away") from None
-
-
 def load_look(root: str | Path, sequence_id: str | None = None) -> SequenceLook:
     """The :class:`SequenceLook` of ``sequence_id`` in the dataset at ``root`` (None: the first sequence with a
     contact), its video and labels read and its flat gel rendered."""
+    from .dataset import dataset_flat_frame
     from .schema import load_manifest
 
     root = Path(root)
@@ -202,18 +182,6 @@ LABEL_PANELS = (
     ("gel twist", "degrees", [("twist_deg", None, "twist")]),
     ("contact area", "mm^2", [("contact_area_mm2", None, "area")]),
 )
-
-
-def varying_nuisance(record: dict | None, count: int) -> dict[str, np.ndarray]:
-    """The numeric per-frame arrays (``count`` rows, 1-D or 2-D) of a nuisance record that change over the
-    sequence: the stages that did something (a dataset may hold a record of constant "nothing applied" rows
-    for every sequence, with no level or where a stage did nothing)."""
-    out = {}
-    for key, value in (record or {}).items():
-        v = np.asarray(value)
-        if v.ndim in (1, 2) and len(v) == count and np.issubdtype(v.dtype, np.number) and np.ptp(v, axis=0).max() > 0:
-            out[key] = v.astype(float)
-    return out
 
 
 def labels_figure(look: SequenceLook, path: Path) -> Path:

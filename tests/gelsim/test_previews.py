@@ -41,7 +41,8 @@ def test_texture_sheet_shows_each_fabrics_frame_centre_at_its_own_pixels(tiny):
     stretched (#50: at 320x240 the frames alone were grey and hazy)."""
     import cv2
 
-    from gelsim.annotate import dataset_flat_frame, stretched_difference
+    from gelsim.annotate import stretched_difference
+    from gelsim.dataset import dataset_flat_frame
     from gelsim.video import read_video
 
     m = load_manifest(tiny)
@@ -66,7 +67,7 @@ def test_texture_sheet_shows_each_fabrics_frame_centre_at_its_own_pixels(tiny):
 def test_the_flat_gel_is_the_datasets_sensor_before_contact(tiny):
     """The frames before contact differ from the rendered flat gel by the camera's noise and the codec's
     error only: the difference panels show what the contact changed, not another sensor."""
-    from gelsim.annotate import dataset_flat_frame
+    from gelsim.dataset import dataset_flat_frame
     from gelsim.video import read_video
 
     m = load_manifest(tiny)
@@ -197,7 +198,8 @@ def test_a_nuisance_level_shows_in_the_first_look(tiny, tmp_path):
 def test_the_first_look_shows_a_sequence_its_nuisance_record_says_was_touched(tiny):
     """A level may touch few recordings: the first look's nuisance rows show the sequence whose per-frame
     record changes most over its first frames."""
-    from gelsim.annotate import dataset_flat_frame, tile
+    from gelsim.annotate import tile
+    from gelsim.dataset import dataset_flat_frame
     from gelsim.firstlook import NUISANCE_FRAMES, RESOLUTION, nuisance_rows, nuisance_shown
     from gelsim.video import read_video
 

@@ -64,7 +64,8 @@ def test_a_nuisance_record_gets_a_panel_per_value_that_changes(tiny, tmp_path):
     """Where the dataset holds a per-frame nuisance record of the sequence (``nuisance/fNNN/<id>.npz``, the
     manifest entry's ``nuisance``), each of its per-frame values that changes over the sequence gets a panel
     under the labels; constant "nothing applied" rows and values not per frame get none."""
-    from gelsim.show import labels_figure, nuisance_record, varying_nuisance
+    from gelsim.annotate import nuisance_record, varying_nuisance
+    from gelsim.show import labels_figure
 
     seq = load_manifest(tiny)["sequences"][0]
     plain = labels_figure(load_look(tiny, seq["id"]), tmp_path / "plain.png")
