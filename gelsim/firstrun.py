@@ -1,7 +1,7 @@
 """What a first run on a machine does before its first frame, said in one line.
 
 The imprint's and the optics' per-pixel kernels are compiled by numba the first time they run on a machine
-(about 20-25 s of one core for a fast frame; docs/quickstart.md) and cached on disk, next to the installed
+(10-25 s of one core for a fast frame, with the machine's load; docs/quickstart.md) and cached on disk, next to the installed
 package (``__pycache__``) or, where that is read only, in numba's user cache; later runs load them in about
 half a second. Until then a first ``gelsim render`` looked hung. :func:`announce_compiles` says it on
 stderr once, when the first compile starts, in whichever process that is: the command's own or one of
@@ -27,7 +27,7 @@ class _FirstCompile:
             if _announced.value:
                 return
             _announced.value = 1
-        _notify("first run on this machine: compiling the imprint and optics kernels (about 15-30 s on 2 cores; "
+        _notify("first run on this machine: compiling the imprint and optics kernels (10-30 s on 2 cores; "
                 "numba keeps them on disk for the next runs) ...")
 
     def on_end(self, event) -> None:

@@ -98,7 +98,7 @@ def warn_if_bottomed(prog: str, bottomed: bool, carried_n: float, asked_n: float
 
 
 def say_first_run(prog: str) -> None:
-    """For a command that renders frames: the first compile of the numba kernels on this machine (15-30 s)
+    """For a command that renders frames: the first compile of the numba kernels on this machine (10-30 s)
     is said on stderr in one line, ``PROG: first run on this machine: compiling ...`` (gelsim.firstrun), when
     stderr is a terminal: a person waits there; a log or a test reading stderr gets only the command's own
     lines."""
