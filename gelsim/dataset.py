@@ -95,8 +95,10 @@ MAX_LANES = 16
 MAX_UNITS = 1000
 
 PRESETS: dict[str, dict[str, Any]] = {
-    # A first look in 6-15 s on 2 cores (measured 2026-11-28; 14 s on a slow day): 10 fabrics x 3 sequences at 320x240.
-    "quick": dict(fabrics=10, sequences_per_fabric=3, resolution=(320, 240), fidelity="fast"),
+    # A first look, and a first trained and evaluated model (`stam train --config quick`): 10 fabrics x 4
+    # sequences at 320x240, split 2:1:1 per fabric (20 training, 10 validation, 10 test sequences; the
+    # paper's 7:2:1 of 3 left no test sequence). Times: docs/quickstart.md.
+    "quick": dict(fabrics=10, sequences_per_fabric=4, resolution=(320, 240), fidelity="fast", split=(2.0, 1.0, 1.0)),
     # What `stam experiment --preset cpu` is sized for: all fabrics at 320x240 with the full-resolution
     # imprint (balanced): at 160x120 (0.12 mm/px) the finer weaves fall below two pixels per yarn and
     # STAM learns nothing.
@@ -169,9 +171,9 @@ def parse_resolution(text: str) -> tuple[int, int]:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise GelsimError(f"--resolution {text!r} is malformed; give WIDTHxHEIGHT, e.g. 320x240") from None
-    if w < 16 or h < 16:
-        raise GelsimError(f"--resolution {text!r} is too small; use at least 16x16")
-    return w, h
+    if w < 1 or h < 1:
+        raise GelsimError(f"--resolution {text!r} is malformed; give WIDTHxHEIGHT in whole pixels, e.g. 320x240")
+    return w, h   # the sensor's own range is checked with its profile (SensorProfile.with_resolution)
 
 
 def apportion(total: int, weights: Iterable[float]) -> list[int]:
@@ -284,6 +286,22 @@ def check_frames(config: GenerateConfig) -> None:
 def unit_seed(seed: int, unit: int) -> int:
     """The draw seed of sensor unit ``unit`` of the dataset seeded ``seed`` (its own stream)."""
     return int(np.random.SeedSequence([seed, unit, 0x0D17]).generate_state(1)[0])
+
+
+def dataset_flat_frame(manifest: dict, sequence: dict | None = None):
+    """The flat gel of a dataset's sensor as its frames show it (:func:`gelsim.annotate.flat_frame`): uint8 RGB
+    (H, W, 3) at the dataset's resolution, rendered from the manifest's options for ``sequence``'s sensor unit
+    (its manifest entry; None or no ``unit``: the profile itself)."""
+    from .annotate import flat_frame
+
+    known = {f.name for f in dataclasses.fields(GenerateConfig)}
+    opts = {k: tuple(v) if isinstance(v, list) else v for k, v in manifest.get("options", {}).items() if k in known}
+    config = GenerateConfig(**opts)
+    profile = resolve_profile(config)
+    unit = int((sequence or {}).get("unit", -1))
+    if unit >= 0:
+        profile = unit_profiles(config, profile)[unit]
+    return flat_frame(profile, config.fidelity, config.seed)
 
 
 def unit_profiles(config: GenerateConfig, profile) -> list:
@@ -432,7 +450,10 @@ def nuisance_level(config: GenerateConfig) -> dict:
     """``config.nuisance``'s stages at ``config.nuisance_severity``: ``nuisance`` (stage -> severity; empty for
     ``none``, which loads nothing)
     and ``nuisance_stages`` (their parameters, or None). An unknown level is a one-line GelsimError."""
-    if config.nuisance == "none" and config.nuisance_severity is None:
+    if config.nuisance == "none":
+        if config.nuisance_severity is not None:   # it would change nothing, yet be recorded
+            raise GelsimError("--nuisance-severity scales the stages of a --nuisance level, and none is set; add "
+                              "--nuisance camera or handheld, or drop --nuisance-severity")
         return dict(nuisance={}, nuisance_stages=None)
     from .nuisance import load_nuisance
 
@@ -913,6 +934,18 @@ def _sequence_results(config: GenerateConfig, root: Path, todo: list[SequenceSpe
         pool.join()
 
 
+def check_workers(workers: int | None) -> int:
+    """The worker processes a local run starts: ``workers`` (None: one per core), checked to be 1 to the
+    machine's cores (more processes than cores only share them, and a typo of 100,000 would fork as many)."""
+    cores = os.cpu_count() or 1
+    if workers is None:
+        return cores
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= cores:
+        raise GelsimError(f"--workers {workers} is out of range; give 1 to {cores} (this machine's cores; "
+                          "the default is all of them)")
+    return workers
+
+
 def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = None,
              progress: Callable[[int, int, dict], None] | None = None, previews: bool = True,
              ray: str | None = None, replace_stale: bool = False,
@@ -940,6 +973,8 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
         raise GelsimError(f"--units {config.units} is out of range; give 0 (the profile itself) to {MAX_UNITS}")
     unit_profiles(config, profile)  # a profile without [unit_variation] fails here, before anything is written
     nuisance_level(config)          # an unknown level fails here too
+    if ray is None or ray == "local":   # (a cluster's CPUs are its own: gelsim.cluster.connect says so)
+        check_workers(workers)
     specs = plan(config, len(catalog))
     root = Path(out)
     connection = contextlib.nullcontext(None)
@@ -988,7 +1023,7 @@ def _generate_in(config, root: Path, catalog, profile, specs, workers, progress,
     if previews:
         from .previews import write_previews
 
-        write_previews(root, manifest)
+        write_previews(root, manifest, lambda sequence: dataset_flat_frame(manifest, sequence))
     atomic_write_json(root / schema.MANIFEST, manifest)
     if previews and manifest["complete"]:
         from .stats import write_stats

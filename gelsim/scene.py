@@ -138,6 +138,22 @@ def positive_mm(name: str, value) -> float:
     return float(value)
 
 
+#: The largest sphere or cylinder diameter, mm (10 m). Heights are float32: at a 5 m radius one step of
+#: float32 is 0.3 um, a hundredth of a light press's depth; from about 1 km of diameter the cap is one
+#: constant to float32, nothing touches and the press has no contact to solve. A ball this size is a
+#: flat plate to any sensor's field.
+MAX_DIAMETER_MM = 10_000.0
+
+
+def diameter_mm_of(name: str, value) -> float:
+    """``value`` as a float if it is a diameter > 0 and at most :data:`MAX_DIAMETER_MM`; else a GelsimError."""
+    d = positive_mm(name, value)
+    if d > MAX_DIAMETER_MM:
+        raise GelsimError(f"{name} = {value!r} is larger than {MAX_DIAMETER_MM:g} mm, where the shape is flat to "
+                          f"the sensor; give a diameter up to {MAX_DIAMETER_MM:g} mm")
+    return d
+
+
 @dataclass(frozen=True)
 class Sphere(_Rigid):
     """A rigid ball of ``diameter_mm`` resting on the base plane at ``center_mm``."""
@@ -146,7 +162,7 @@ class Sphere(_Rigid):
     friction: float = DEFAULT_FRICTION
 
     def __post_init__(self):
-        positive_mm("diameter_mm", self.diameter_mm)
+        diameter_mm_of("diameter_mm", self.diameter_mm)
 
     @property
     def name(self) -> str:
@@ -169,7 +185,7 @@ class Cylinder(_Rigid):
     friction: float = DEFAULT_FRICTION
 
     def __post_init__(self):
-        positive_mm("diameter_mm", self.diameter_mm)
+        diameter_mm_of("diameter_mm", self.diameter_mm)
         if self.length_mm is not None:
             positive_mm("length_mm", self.length_mm)
 
@@ -213,11 +229,11 @@ def indenter(name: str, *, diameter_mm: float | None = None, length_mm: float | 
     from +x towards +y) or the path of a mesh file (MESH_SUFFIXES, units mm)."""
     name = str(name)
     if name == "sphere":
-        return Sphere(positive_mm("diameter_mm", diameter_mm))
+        return Sphere(diameter_mm_of("diameter_mm", diameter_mm))
     if name == "cylinder":
         if not isinstance(angle_deg, (int, float)) or not math.isfinite(angle_deg):
             raise GelsimError(f"angle_deg = {angle_deg} is not finite; give an angle in degrees")
-        return Cylinder(positive_mm("diameter_mm", diameter_mm),
+        return Cylinder(diameter_mm_of("diameter_mm", diameter_mm),
                         None if length_mm is None else positive_mm("length_mm", length_mm), float(angle_deg))
     if Path(name).suffix.lower() in MESH_SUFFIXES:
         return Mesh(name)

@@ -152,7 +152,8 @@ def load_manifest(root: str | Path, *, complete: bool = False, error: type[Gelsi
     root = Path(root)
     path = root / MANIFEST
     if not root.is_dir():
-        raise error(f"dataset directory {root} does not exist; give the --out directory of gelsim generate")
+        what = "is a file, not a dataset directory" if root.exists() else "does not exist"
+        raise error(f"dataset directory {root} {what}; give the --out directory of gelsim generate")
     if not path.is_file():
         raise error(f"{root} is not a gelsim dataset (no {MANIFEST}); give a directory made by gelsim generate")
     try:

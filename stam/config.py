@@ -1,4 +1,4 @@
-"""stam's configuration: TOML presets into frozen, validated dataclasses.
+"""stam's configuration: TOML configs (called presets in the code) into frozen, validated dataclasses.
 
 A preset (``stam/configs/<name>.toml`` or any ``.toml`` path) has up to three sections:
 
@@ -14,6 +14,7 @@ naming the file and key. ``stam train`` and ``stam experiment`` read the same pr
 from __future__ import annotations
 
 import dataclasses
+import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +27,7 @@ from .data import DEFAULT_ONSET_THRESHOLD
 from .errors import StamError
 
 CONFIG_DIR = package_dir("stam", "configs")
-# Without a GPU, `stam train` with no --preset uses the cpu preset: the library defaults (full
+# Without a GPU, `stam train` with no --config uses the cpu config: the library defaults (full
 # AlexNet from scratch at 224 px) take about 2 minutes an epoch on 2 cores and stay at chance for
 # the first epochs; with one, the paper preset (the paper's setting).
 CPU_PRESET = "cpu"
@@ -167,8 +168,8 @@ def preset_path(preset: str | Path) -> Path:
     path = Path(s) if s.endswith(".toml") else CONFIG_DIR / f"{s}.toml"
     if not path.is_file():
         if s.endswith(".toml"):
-            raise StamError(f"preset file {path} not found; check the path")
-        raise StamError(f"unknown preset {s!r}; choose one of {', '.join(preset_names())} or a .toml path")
+            raise StamError(f"config file {path} not found; check the path")
+        raise StamError(f"unknown config {s!r}; choose one of {', '.join(preset_names())} or a .toml path")
     return path
 
 
@@ -187,11 +188,31 @@ def load_preset(preset: str | Path) -> Preset:
     return _build(Preset, {"name": name, **raw}, str(path))
 
 
-def resolve_train(base: TrainConfig, overrides: dict | None = None, source: str = "the command line") -> TrainConfig:
-    """``base`` with ``overrides`` (None values skipped), validated like a file."""
+#: ``resolve_train``'s source for the options of ``stam train`` (``--frames``, ``--epochs``, ...).
+COMMAND_LINE = "the command line"
+
+
+def resolve_train(base: TrainConfig, overrides: dict | None = None, source: str = COMMAND_LINE) -> TrainConfig:
+    """``base`` with ``overrides`` (None values skipped), validated like a file. A bad value from the
+    command line is named as its option (``--frames 0``), one from ``--set`` as ``--set frames``."""
     values = dataclasses.asdict(base)
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
-    return _build(TrainConfig, values, source)
+    return build_options(TrainConfig, values, source)
+
+
+def build_options(cls, values: dict, source: str = COMMAND_LINE):
+    """``cls`` (TrainConfig, PretrainConfig) built from ``values`` and validated like a file, a bad value
+    named as its option: ``--frames`` from the command line (``source`` COMMAND_LINE), ``--set frames``
+    from ``--set``, ``SOURCE.frames`` from elsewhere."""
+    try:
+        return _build(cls, values, source)
+    except StamError as e:
+        if source not in (COMMAND_LINE, "--set"):
+            raise
+        named = re.sub(rf"^{re.escape(source)}\.(\w+):",
+                       lambda m: (f"--{m[1].replace('_', '-')}" if source == COMMAND_LINE else f"--set {m[1]}") + ":",
+                       str(e))
+        raise StamError(named) from None
 
 
 def _build(cls, data: dict, where: str):

@@ -39,8 +39,13 @@ def metrics(labels: np.ndarray, preds: np.ndarray, num_classes: int) -> dict:
             "per_class_accuracy": per_class, "confusion": cm.tolist(), "count": int(labels.size)}
 
 
+#: Up to this many classes, each cell of the confusion plot shows its count of windows.
+MAX_ANNOTATED_CLASSES = 30
+
+
 def plot_confusion(cm, class_names: list[str], path: str | Path, title: str = "") -> Path:
-    """Write the row-normalised confusion matrix as a PNG (atomically)."""
+    """Write the row-normalised confusion matrix as a PNG (atomically): colour the fraction of each true
+    class, and the number of windows in each non-empty cell up to MAX_ANNOTATED_CLASSES classes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -55,6 +60,10 @@ def plot_confusion(cm, class_names: list[str], path: str | Path, title: str = ""
     if k <= 30:
         ax.set_xticks(range(k), class_names, rotation=90, fontsize=7)
         ax.set_yticks(range(k), class_names, fontsize=7)
+    if k <= MAX_ANNOTATED_CLASSES:   # the counts themselves, where a small split leaves fractions ambiguous
+        for i, j in zip(*np.nonzero(cm)):
+            ax.text(j, i, f"{int(cm[i, j])}", ha="center", va="center", fontsize=7,
+                    color="black" if norm[i, j] > 0.5 else "white")
     ax.set_xlabel("predicted fabric")
     ax.set_ylabel("true fabric")
     ax.set_title(title)
@@ -88,7 +97,8 @@ def evaluate(checkpoint: str | Path, data_dir: str | None = None, split: str = "
     out = Path(out) if out else Path(checkpoint).parent
     out.mkdir(parents=True, exist_ok=True)
     png = plot_confusion(res["confusion"], data.class_names, out / f"confusion-{split}.png",
-                         f"{cfg.model}, n={cfg.frames}, {cfg.start}: {split} accuracy {res['accuracy']:.3f}")
+                         f"{cfg.model}, n={cfg.frames}, {cfg.start}: {split} accuracy {res['accuracy']:.3f}\n"
+                         f"({res['count']} windows; chance {1 / max(data.num_classes, 1):.3f})")
     res["confusion_png"] = str(png)
     atomic_write_text(out / f"eval-{split}.json", json.dumps(res, indent=1))
     return res

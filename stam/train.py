@@ -437,7 +437,7 @@ def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict
             log = note = None
     if chosen is not None and note:
         why = "no CUDA device" if chosen != "paper" else "a CUDA device is available"
-        note(f"stam train: no --preset given and {why}: using the {chosen} preset: {describe_run(cfg, plan)}; "
+        note(f"stam train: no --config given and {why}: using the {chosen} config: {describe_run(cfg, plan)}; "
              "see `stam train --help`")
     dataset = TactileDataset(cfg.data, cfg.cache_dir or None, crop=cfg.crop)
     shortest = min(s.num_frames for s in dataset.sequences)
