@@ -290,7 +290,7 @@ class HeightPatch:
         b1 = (x_mm - x0) / p - a11 * cu - a12 * cv
         b2 = (y_mm - y0) / p - a21 * cu - a22 * cv
         h, w = r1 - r0, c1 - c0
-        out = None
+        plane = _tilt_plane(tilt_deg, c0, c1, r0, r1, cu, cv, s)
         # The map's departure from a translation, at worst over the frame, px.
         off = (abs(a11 - 1.0) + abs(a21)) * W + (abs(a12) + abs(a22 - 1.0)) * H
         if off <= NEAR_TRANSLATION_PX:
@@ -299,15 +299,13 @@ class HeightPatch:
             # took 1.3 ms per 960x720 frame, the filter 0.25).
             tx = a11 * cu + a12 * cv + b1 - cu
             ty = a21 * cu + a22 * cv + b2 - cv
-            out = _shifted(self.heights_mm, tx, ty, h, w, r0, c0, _tilt_plane(tilt_deg, c0, c1, r0, r1, cu, cv, s))
+            out = _shifted(self.heights_mm, tx, ty, h, w, r0, c0, plane)
             if out is not None:
                 return out
-        if out is None:
-            # (the box's pixel (0, 0) is the frame's (c0, r0): the map's offset moves by A (c0, r0))
-            M = np.array([[a11, a12, b1 + a11 * c0 + a12 * r0], [a21, a22, b2 + a21 * c0 + a22 * r0]], dtype=np.float64)
-            out = cv2.warpAffine(self.heights_mm, M, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                 borderMode=cv2.BORDER_REPLICATE)
-        plane = _tilt_plane(tilt_deg, c0, c1, r0, r1, cu, cv, s)
+        # (the box's pixel (0, 0) is the frame's (c0, r0): the map's offset moves by A (c0, r0))
+        M = np.array([[a11, a12, b1 + a11 * c0 + a12 * r0], [a21, a22, b2 + a21 * c0 + a22 * r0]], dtype=np.float64)
+        out = cv2.warpAffine(self.heights_mm, M, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                             borderMode=cv2.BORDER_REPLICATE)
         if plane is not None:
             _add_plane(out, *plane)
         return out
@@ -358,8 +356,8 @@ _FILTER_LANES = 8
 def _shift_rows(src, y0: int, x0: int, k, out, tilted: bool, ax, xs, ay, ys) -> None:
     """``out`` (float32 (h, w)) = the 2 x 2 filter ``k`` (float32) over ``src[y0:y0 + h + 1, x0:x0 + w + 1]``,
     anchored at its top-left tap, plus (``tilted``) :func:`_add_plane`'s plane: one pass where OpenCV's
-    filter2D, two numpy fixes of the crop's last row and column and the plane's pass took four (0.3 against
-    0.6 ms per 960x720 frame), with their arithmetic. Off the crop's last row and column a pixel is what
+    filter2D, two numpy fixes of the crop's last row and column and the plane's pass took four (0.16 against
+    0.24 ms per tilted 960x720 frame), with their arithmetic. Off the crop's last row and column a pixel is what
     filter2D computes with this wheel's vector code (AVX2, 8 lanes with FMA; measured bit for bit): the
     taps in row-major order, a chain of fused multiply-adds in its first ``8 * (w // 8)`` columns, the
     scalar tail's plain products and sums beyond; on them, numpy's sum of the four products left to right.
