@@ -126,3 +126,15 @@ def test_check_depth_names_the_problem():
     with pytest.raises(GelsimError, match="negative"):
         C.check_depth(np.full((2, 2), -0.1, np.float32), (2, 2))
     assert C.check_depth(np.full((2, 2), -1e-5, np.float32), (2, 2)).min() == 0.0     # float error clipped
+
+
+def test_light_maps_are_made_only_for_a_shader_that_reads_them():
+    """A calibrated table's renderer never builds the LEDs' light maps (41 MB of a dataset worker's peak at
+    960x720); a Phong renderer gets them."""
+    from gelsim.sensor import load_profile
+
+    lut = Renderer(load_profile("vitac").with_resolution(64, 48))
+    assert lut.shader.name == "lut" and "maps" not in vars(lut.optics)
+    assert len(lut.optics.maps) == len(lut.profile.lights)          # still there when asked for
+    phong = Renderer(load_profile("digit").with_resolution(64, 48))
+    assert "maps" in vars(phong.optics) and phong.shader.maps is phong.optics.maps
