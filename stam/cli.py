@@ -121,13 +121,14 @@ def _experiment(args) -> int:
         import_ray()  # not installed: one line, before anything is written
     stdout = sys.stdout  # progress lines stay on stdout while Ray's own messages go to stderr (gelsim.cluster)
     overrides = {"attention_at": args.attention_at} if args.attention_at else None
+    pretrain = None if args.pretrain_frames is None else {"contact_only": args.pretrain_frames == "contact"}
     res = run_experiment(args.data, args.out, args.preset, args.seeds, args.models, args.frames, args.settings,
                          overrides=overrides, log=None if args.json else (lambda m: print(m, file=stdout)),
-                         note=lambda m: print(m, file=sys.stderr), ray=args.ray)
+                         note=lambda m: print(m, file=sys.stderr), ray=args.ray, pretrain_overrides=pretrain)
     if args.json:
         print_json({k: v for k, v in res.items() if k != "cells"} | {"cells": len(res["cells"])})
     else:
-        for k in ("table1", "table2", "differences_table"):
+        for k in ("table1", "table2", "table2_transfer", "differences_table"):
             if k in res:
                 print(open(res[k]).read())
         print(f"plot: {res['plot']}")
@@ -153,6 +154,12 @@ def _explain(args) -> int:
     res = explain(args.checkpoint, args.sequence, args.out, args.data, args.split)
     return print_result(args.json, res, "\n".join(res["files"]))
 
+
+MODEL_HELP = ("cnn, cnn_sa, stam (the paper's three), or a named variant: cnn_mean_features, cnn_max_features "
+              "(the baseline's fusions), cnn_flatten (one FC on the flattened window, no per-frame head), "
+              "cnn_joint (per-frame head + FC on the flattened window: STAM-paper's head without attention), "
+              "stam_paper (full-width q, k, v and that head: 68.88 M parameters at the paper's size), oracle "
+              "(the CNN on the frames from the detected onset on only)")
 
 TRAIN_HELP = """train one model (writes config.json, log.csv, last.pt, best.pt)
 
@@ -202,8 +209,9 @@ With fewer than {stats.MIN_TEST_SEQUENCES} test sequences it warns; differences.
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .config import SETTINGS
     from .data import DEFAULT_ONSET_THRESHOLD
-    from .models import MODEL_NAMES
+    from .models import MODELS
 
     p = ArgumentParser(prog="stam", formatter_class=HelpFormatter,
                                 description="STAM tactile texture recognition (Cao et al., IROS 2020) on gelsim datasets.")
@@ -219,7 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
         return s
 
     s = cmd("info", _info, "parameter count of a model (beside the paper's figure at its setting)")
-    s.add_argument("--model", choices=MODEL_NAMES, required=True, help="model name")
+    s.add_argument("--model", choices=MODELS, required=True, help=MODEL_HELP)
     s.add_argument("--frames", type=int, default=2, help="n, frames per window")
     s.add_argument("--width", type=float, default=1.0, help="AlexNet channel multiplier (1.0 = full)")
     s.add_argument("--image-size", type=int, default=224, help="input side in px")
@@ -255,7 +263,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "default: paper with a CUDA device, cpu without (see above)")
     s.add_argument("--data", required=True, help="dataset directory")
     s.add_argument("--out", required=True, help="run directory")
-    s.add_argument("--model", choices=MODEL_NAMES, help="model (default: the preset's, stam)")
+    s.add_argument("--model", choices=MODELS, help=MODEL_HELP + " (default: the preset's, stam)")
     s.add_argument("--frames", type=int, help="n, frames per window (default: the preset's, 2)")
     s.add_argument("--start", choices=("contact", "zero"), help="window start: first contact frame (clean) or frame 0 (noisy)")
     s.add_argument("--epochs", type=int, help="epochs (default: the preset's: cpu 12, paper 30)")
@@ -282,9 +290,17 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--preset", default="cpu", help="cpu (2 CPU cores), paper (GPU), or a .toml path")
     s.add_argument("--seeds", type=int, help="seeds per cell (default from the preset: cpu 3, paper 1)")
-    s.add_argument("--models", nargs="+", choices=MODEL_NAMES, help="subset of models (default all)")
+    s.add_argument("--models", nargs="+", choices=MODELS, metavar="MODEL",
+                   help="models (default the preset's: cnn, cnn_sa, stam); " + MODEL_HELP)
     s.add_argument("--frames", nargs="+", type=int, help="subset of n (default 2..7)")
-    s.add_argument("--settings", nargs="+", choices=("clean", "noisy"), help="subset of settings (default both)")
+    s.add_argument("--settings", nargs="+", choices=SETTINGS,
+                   help="clean (trained and tested on windows from the detected onset), noisy (from frame 0), "
+                        "transfer (the clean models tested from frame 0: trains the clean cells too) "
+                        "(default the preset's: clean noisy)")
+    s.add_argument("--pretrain-frames", choices=("contact", "all"),
+                   help="the frames the backbone is pretrained on: contact (from the detected onset on) or all "
+                        "(the frames before contact too, as a model trained on noisy windows meets them) "
+                        "(default the preset's [pretrain] contact_only: cpu, contact)")
     s.add_argument("--attention-at", choices=("pool5", "conv5"),
                    help="where the attention reads the backbone: pool5, after its last max-pool (the paper's F; "
                         "the presets' default), or conv5, before it, the pool following the attention (7 x 7 "
