@@ -3,7 +3,7 @@ each nuisance level's own data, both training protocols, n = 2..7, paired 95% in
 table and accuracy against severity.
 
     .venv/bin/python benchmarks/nuisance_study.py --data DATA --out OUT [--gen "GELSIM GENERATE OPTIONS"]
-        [--levels none handheld] [--control-levels handheld] [--severities 0.5 2] [--frames 2 4 6] ...
+        [--levels none handheld] [--control-levels none handheld] [--severities 0.5 2] [--frames 2 4 6] ...
 
 Steps, in this order; each is resumable (a complete dataset, a finished backbone or cell is reused):
 
@@ -227,8 +227,8 @@ def parse(argv=None):
                         "docs/stam_study.md; the full study: '--preset cpu --resolution 960x720']")
     p.add_argument("--levels", nargs="+", default=["none", "handheld"],
                    help="nuisance levels (gelsim generate --nuisance), the first the reference [default: none handheld]")
-    p.add_argument("--control-levels", nargs="+", default=["handheld"],
-                   help="levels of the positive control's data [default: handheld]")
+    p.add_argument("--control-levels", nargs="+",
+                   help="levels of the positive control's data [default: the last of --levels]")
     p.add_argument("--control-precontact", default="3-6",
                    help="the control's frames before contact, MIN-MAX (gelsim generate --precontact) [default: 3-6]")
     p.add_argument("--control-models", nargs="+", default=list(CONTROL_MODELS), choices=MODELS, metavar="MODEL",
@@ -254,6 +254,7 @@ def parse(argv=None):
     p.add_argument("--verbose", action="store_true", help="stam experiment's progress lines")
     a = p.parse_args(argv)
     a.severity_level = a.severity_level or a.levels[-1]
+    a.control_levels = a.control_levels or [a.levels[-1]]
     check_cuts(a.frames, a.levels, a.control_levels)
     for need in ("cnn",):
         if need not in a.models or need not in a.control_models:
