@@ -250,6 +250,8 @@ def parse(argv=None):
     p.add_argument("--severity-level", help="the level whose severity is swept [default: the last of --levels]")
     p.add_argument("--severity-models", nargs="+", default=["cnn", "stam", "stam_paper", "oracle"], choices=MODELS,
                    metavar="MODEL", help="models of the severity runs [default: cnn stam stam_paper oracle]")
+    p.add_argument("--threads", type=int, default=0,
+                   help="torch threads for pretraining and features (the heads use the preset's) [default: torch's]")
     p.add_argument("--plan", action="store_true", help="print the datasets and cells, run nothing")
     p.add_argument("--verbose", action="store_true", help="stam experiment's progress lines")
     a = p.parse_args(argv)
@@ -272,6 +274,10 @@ def main(argv=None) -> int:
     if a.plan:
         study.plan()
         return 0
+    if a.threads:
+        import torch
+
+        torch.set_num_threads(a.threads)
     return study.run()
 
 

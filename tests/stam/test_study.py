@@ -178,3 +178,14 @@ def test_nuisance_study_end_to_end(tmp_path):
         assert pretrain["path"] == str(out / name / "pretrain" / "backbone.pt") and pretrain["train_frames"] == 21 * 9
     bad = subprocess.run(args[:-4] + ["--frames", "2", "3", "--seeds", "1"], capture_output=True, text=True)
     assert bad.returncode == 2 and "n = 4, 6" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_the_small_study_preset_is_the_cpu_preset_with_half_its_pretraining():
+    import dataclasses
+
+    from stam.config import load_preset
+
+    small, cpu = load_preset("study-small"), load_preset("cpu")
+    assert small.train == cpu.train
+    assert small.pretrain == dataclasses.replace(cpu.pretrain, epochs=cpu.pretrain.epochs // 2)
+    assert set(small.sweep.models) <= set(study.STUDY_MODELS) and set(study.REQUIRED_FRAMES) <= set(small.sweep.frames)
