@@ -33,10 +33,13 @@ def main(argv=None) -> int:
     for item in a.runs:
         sev, _, d = item.partition("=")
         tables = json.loads((Path(d) / "results.json").read_text())["tables"]
+        # the n every setting has (the clean setting may hold extra n, run for the matched cost)
+        shared = set.intersection(*(set(cells) for models in tables.values() for cells in models.values()))
         for setting, models in tables.items():
             for model, cells in models.items():
-                means = [c["mean"] for c in cells.values()]
-                half = [(c["ci95"][1] - c["ci95"][0]) / 2 for c in cells.values()]
+                kept = [c for n, c in cells.items() if n in shared]
+                means = [c["mean"] for c in kept]
+                half = [(c["ci95"][1] - c["ci95"][0]) / 2 for c in kept]
                 pts.setdefault((setting, model), []).append((float(sev), np.mean(means), np.mean(half)))
     settings = [s for s in ("clean", "noisy", "transfer") if any(k[0] == s for k in pts)]
     fig, axes = plt.subplots(1, len(settings), figsize=(4.5 * len(settings), 3.6), sharey=True, squeeze=False)

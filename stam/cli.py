@@ -124,7 +124,8 @@ def _experiment(args) -> int:
     pretrain = None if args.pretrain_frames is None else {"contact_only": args.pretrain_frames == "contact"}
     res = run_experiment(args.data, args.out, args.preset, args.seeds, args.models, args.frames, args.settings,
                          overrides=overrides, log=None if args.json else (lambda m: print(m, file=stdout)),
-                         note=lambda m: print(m, file=sys.stderr), ray=args.ray, pretrain_overrides=pretrain)
+                         note=lambda m: print(m, file=sys.stderr), ray=args.ray, pretrain_overrides=pretrain,
+                         clean_extra=args.clean_frames)
     if args.json:
         print_json({k: v for k, v in res.items() if k != "cells"} | {"cells": len(res["cells"])})
     else:
@@ -297,6 +298,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="clean (trained and tested on windows from the detected onset), noisy (from frame 0), "
                         "transfer (the clean models tested from frame 0: trains the clean cells too) "
                         "(default the preset's: clean noisy)")
+    s.add_argument("--clean-frames", nargs="+", type=int, metavar="N",
+                   help="more n for the clean setting only, e.g. each n - 1 of --frames: a window from frame 0 that "
+                        "starts o frames before contact holds the clean window of n - o frames, so its frames before "
+                        "contact can be costed against it (differences.md) when --frames skips n (default none)")
     s.add_argument("--pretrain-frames", choices=("contact", "all"),
                    help="the frames the backbone is pretrained on: contact (from the detected onset on) or all "
                         "(the frames before contact too, as a model trained on noisy windows meets them) "

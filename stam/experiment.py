@@ -248,12 +248,15 @@ def _cell_results(base: TrainConfig, out: Path, keys: list[tuple], data, feats, 
 def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: int | None = None,
                    models: list[str] | None = None, frames: list[int] | None = None,
                    settings: list[str] | None = None, overrides: dict | None = None, log=print,
-                   note=None, ray: str | None = None, pretrain_overrides: dict | None = None) -> dict:
+                   note=None, ray: str | None = None, pretrain_overrides: dict | None = None,
+                   clean_extra: list[int] | None = None) -> dict:
     """Run (or resume) the sweep; returns what results.json holds: cells (without per-sequence lists),
     tables, differences, ratios, resolution, seed check, paths. ``settings``: of clean, noisy and
     transfer (which tests the clean models, so it trains them too). ``overrides``: [train] keys;
     ``pretrain_overrides``: [pretrain] keys (e.g. ``contact_only=False``: the backbone also learns the
-    frames before contact). ``log``: progress lines; ``note``:
+    frames before contact). ``clean_extra``: more n for the clean setting only (e.g. each n − 1, so that
+    the frames before contact can be costed against the clean window with the same contact frames when
+    ``frames`` skips n). ``log``: progress lines; ``note``:
     warnings (one line each; the CLI prints them on stderr). ``ray``: train the cells as Ray tasks
     (``"local"``: on a Ray instance started here; ``"auto"`` or ``HOST:PORT``: on that cluster, whose
     nodes must see ``data_dir`` and ``out``); pretraining and the feature cache stay on this machine."""
@@ -264,11 +267,11 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
         connection = connect(ray)
     with connection as cluster:  # joined first: a bad address fails before any pretraining
         return _run_experiment(data_dir, out, preset, seeds, models, frames, settings, overrides, log, note,
-                               cluster, pretrain_overrides)
+                               cluster, pretrain_overrides, clean_extra)
 
 
 def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, overrides, log, note, cluster,
-                    pretrain_overrides=None) -> dict:
+                    pretrain_overrides=None, clean_extra=None) -> dict:
     cfg = load_preset(preset)
     sweep = cfg.sweep
     models = list(dict.fromkeys(models or sweep.models))
@@ -298,8 +301,10 @@ def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, over
             raise StamError(f"dataset {data_dir} has no {split!r} sequences; generate more sequences per fabric "
                             "(or another gelsim generate --split)")
     shortest = min(s.num_frames for s in data.sequences)
-    if max(frames) > shortest or min(frames) < 1:
-        raise StamError(f"frames {frames} outside 1..{shortest} (the shortest sequence); choose smaller n")
+    clean_extra = sorted(set(clean_extra or []) - set(frames)) if "clean" in settings else []
+    if max(frames + clean_extra) > shortest or min(frames + clean_extra) < 1:
+        raise StamError(f"frames {sorted(set(frames + clean_extra))} outside 1..{shortest} (the shortest sequence); "
+                        "choose smaller n")
     test = sorted(data.split("test"), key=lambda s: s.id)
     test_ids = [s.id for s in test]
     warning = test_size_warning(len(test))
@@ -322,6 +327,7 @@ def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, over
     base = resolve_train(cfg.train, {**(overrides or {}), "data": str(data_dir), "pretrained": pt["path"],
                                      "preset": cfg.name}, "the experiment's overrides")
     todo = [(seed, setting, n, m) for seed in range(seeds) for setting in settings for n in frames for m in models]
+    todo += [(seed, "clean", n, m) for seed in range(seeds) for n in clean_extra for m in models]
     for key in todo:   # before the feature cache: a run that cannot reuse this --out computes nothing
         _check_cell_options(_cell_dir(out, key), base, key[3])
     feats = features_path = None
@@ -349,7 +355,8 @@ def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, over
         if finished[key] is None:
             done(transfer_cell(out, key, data, feats))
     cells = [finished[key] for key in todo]
-    detected = {s.id: data.onset(s, size, "detected", cfg.train.onset_threshold) for s in test}
+    # the onset the clean windows start at (detected, unless the run was told to use the manifest's)
+    detected = {s.id: data.onset(s, size, base.onset, base.onset_threshold) for s in test}
     analysis = analyse(cells, models, frames, settings, test_ids, detected)
     label = str(preset) if base.attention_at == "pool5" else f"{preset}` with `attention_at = {base.attention_at}"
     paths = write_tables(out, analysis, models, frames, settings, seeds, onsets, label)
@@ -444,7 +451,10 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
         columns.append(sum(w * seed_mean[key] for w, key in weighted))
         spreads.append(_shift_spread(weighted, correct))
 
-    cell_keys = [(s, n, m) for s in settings for m in models for n in frames if (s, n, m) in seed_mean]
+    # the clean setting may hold extra n (run for the matched cost of the frames before contact: n - 1)
+    clean_frames = sorted({n for s, n, _ in seed_mean if s == "clean"} | set(frames))
+    cell_keys = [(s, n, m) for s in settings for m in models for n in (clean_frames if s == "clean" else frames)
+                 if (s, n, m) in seed_mean]
     for key in cell_keys:
         column(key, [(1, key)])
     rows = difference_rows(models, settings)
@@ -495,7 +505,8 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
                     ratios[m] = {"ratio": r[0], "ci95": [r[1], r[2]], "resolved": r[1] > 1 or r[2] < 1,
                                  "paper": None if None in paper.values() else paper["noisy"] / paper["clean"]}
 
-    precontact = {t: (_precontact(seed_mean, correct, models, frames, test_ids, onsets, seed_check["shift_variance"], t)
+    precontact = {t: (_precontact(seed_mean, correct, models, frames, test_ids, onsets, seed_check["shift_variance"], t,
+                                  clean_frames)
                       if onsets and "clean" in settings and t in settings else None) for t in ("noisy", "transfer")}
     return {"tables": tables, "differences": differences, "ratios": ratios, "precontact": precontact["noisy"],
             "precontact_transfer": precontact["transfer"],
@@ -517,7 +528,7 @@ def _shift_spread(weighted: list[tuple[float, tuple]], correct: dict) -> float:
 
 
 def _precontact(seed_mean: dict, correct: dict, models, frames, test_ids: list[str], onsets: dict,
-                shift_variance: float, tested: str = "noisy") -> dict | None:
+                shift_variance: float, tested: str = "noisy", clean_frames=None) -> dict | None:
     """The cost of the frames before contact, with the contact frames held fixed.
 
     A noisy window of n frames starts at frame 0; with the detected onset o (1 <= o < n) it holds the
@@ -525,18 +536,20 @@ def _precontact(seed_mean: dict, correct: dict, models, frames, test_ids: list[s
     frames. So noisy(n) - clean(k) on such a sequence is what adding the frames before contact does,
     apart from the contact frames it brings fewer of (the rest of noisy - clean). Per model: the mean
     of that per-sequence difference (correctness averaged over the seeds) over every (sequence, n)
-    with k among ``frames``, as a ratio of means over the test sequences (bootstrap, then widened by
+    with k among ``clean_frames`` (the clean setting's n: ``frames``, and any extra ones run for this, such
+    as n - 1), as a ratio of means over the test sequences (bootstrap, then widened by
     the seeds' shift over the cells involved, as the other intervals). Also model - CNN of it for every
     other model: the paper's claim is that STAM gains here. ``tested``: the setting whose windows start
     at frame 0 (noisy, or transfer: the clean models on those windows). None when no sequence qualifies."""
+    clean_frames = sorted(set(clean_frames or frames))
     pairs = [(i, n, n - onsets[t]) for i, t in enumerate(test_ids) for n in frames
-             if onsets.get(t) is not None and 1 <= onsets[t] < n and n - onsets[t] in frames]
+             if onsets.get(t) is not None and 1 <= onsets[t] < n and n - onsets[t] in clean_frames]
     if not pairs:
         return None
     count = np.zeros(len(test_ids))
     np.add.at(count, [i for i, _, _ in pairs], 1.0)
     # seed shift: each side is a mixture of cells weighted by their share of the pairs
-    share = {(tested, n): 0.0 for n in frames} | {("clean", k): 0.0 for k in frames}
+    share = {(tested, n): 0.0 for n in frames} | {("clean", k): 0.0 for k in clean_frames}
     for _, n, k in pairs:
         share[(tested, n)] += 1 / len(pairs)
         share[("clean", k)] += 1 / len(pairs)
@@ -701,7 +714,8 @@ def write_tables(out: Path, analysis: dict, models, frames, settings, seeds: int
     tables, n_tests = analysis["tables"], analysis["bootstrap"]["test_sequences"]
     for s, name in (("clean", "table1.md"), ("noisy", "table2.md"), ("transfer", "table2_transfer.md")):
         if s in settings:
-            text = markdown_table(tables, s, models, frames, seeds, n_tests)
+            shown = sorted({n for cells in tables.get(s, {}).values() for n in cells} | set(frames))
+            text = markdown_table(tables, s, models, shown, seeds, n_tests)
             text += (f"\nPreset `{preset}`. Onset detection agreed exactly with the simulator's contact onset on "
                      f"{onsets['exact']}/{onsets['sequences']} sequences ({onsets['within_1']} within one frame).\n")
             atomic_write_text(out / name, text)

@@ -58,9 +58,11 @@ def test_control_verdict_and_mechanism_rows():
     assert passed["passed"] and passed["noisy"]["mean"]["mean"] == pytest.approx(10.0)
     assert passed["transfer"]["mean"]["mean"] == pytest.approx(20.0) and set(passed["noisy"]["per_n"]) == {2, 4, 6}
     text = study.control_markdown("x", passed)
-    assert "Control PASSED" in text and "| trained noisy, tested noisy |" in text
+    assert "Control passed (trained noisy, tested noisy; trained clean, tested noisy)" in text
+    assert "| trained noisy, tested noisy |" in text
     failed = study.control_verdict(_cells(0.0, 0.0))
-    assert not failed["passed"] and "Control FAILED" in study.control_markdown("x", failed)
+    text = study.control_markdown("x", failed)
+    assert not failed["passed"] and "Control failed" in text and "gains at most" in text
     # the mechanism table: the CNN's cost (noisy(n) − clean(n − 1): 30% against 40%) and the oracle's gain
     rows = study.mechanism_rows({"none": _cells(0.093, 0.0)})
     cnn = next(r for r in rows if (r["protocol"], r["model"]) == ("noisy", "cnn"))
@@ -157,10 +159,10 @@ def test_nuisance_study_end_to_end(tmp_path):
     out = tmp_path / "out"
     args = [sys.executable, str(SCRIPT), "--data", str(data), "--out", str(out), "--preset", str(preset),
             "--levels", "none", "x", "--control-levels", "x", "--models", "cnn", "oracle",
-            "--frames", "2", "4", "6", "--seeds", "1"]
+            "--frames", "2", "4", "6", "--control-frames", "2", "4", "6", "--seeds", "1"]
     plan = subprocess.run(args + ["--plan"], capture_output=True, text=True)
     assert plan.returncode == 0, plan.stderr
-    assert "control-x" in plan.stdout and "12 cells trained, 6 tested only" in plan.stdout and not out.joinpath("x").exists()
+    assert "control-x" in plan.stdout and "18 cells trained, 6 tested only" in plan.stdout and not out.joinpath("x").exists()
     r = subprocess.run(args, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert r.stdout.index("Positive control") < r.stdout.index("level none done")   # the control comes first
@@ -171,12 +173,12 @@ def test_nuisance_study_end_to_end(tmp_path):
     assert {(r["level"], r["protocol"]) for r in rows} == {(lv, p) for lv in ("none", "x") for p in ("noisy", "transfer")}
     costs = json.loads((out / "costs.json").read_text())
     assert set(costs) == {"control-x", "none", "x"}
-    assert costs["none"]["trained_cells"] == 12 and costs["none"]["tested_cells"] == 6 and costs["none"]["pretrain_s"] > 0
+    assert costs["none"]["trained_cells"] == 18 and costs["none"]["tested_cells"] == 6 and costs["none"]["pretrain_s"] > 0
     # each level pretrains its own backbone, on all of its training frames
     for name in ("none", "x"):
         pretrain = json.loads((out / name / "results.json").read_text())["pretrain"]
         assert pretrain["path"] == str(out / name / "pretrain" / "backbone.pt") and pretrain["train_frames"] == 21 * 9
-    bad = subprocess.run(args[:-4] + ["--frames", "2", "3", "--seeds", "1"], capture_output=True, text=True)
+    bad = subprocess.run(args + ["--frames", "2", "3"], capture_output=True, text=True)   # the last --frames counts
     assert bad.returncode == 2 and "n = 4, 6" in bad.stderr and "Traceback" not in bad.stderr
 
 
