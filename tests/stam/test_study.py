@@ -158,7 +158,8 @@ def test_nuisance_study_end_to_end(tmp_path):
         (data / name).symlink_to(micro)
     out = tmp_path / "out"
     args = [sys.executable, str(SCRIPT), "--data", str(data), "--out", str(out), "--preset", str(preset),
-            "--levels", "none", "x", "--control-levels", "x", "--models", "cnn", "oracle",
+            "--levels", "none", "x", "--control-levels", "x", "--control-onset", "detected", "true",
+            "--models", "cnn", "oracle",
             "--frames", "2", "4", "6", "--control-frames", "2", "4", "6", "--seeds", "1"]
     plan = subprocess.run(args + ["--plan"], capture_output=True, text=True)
     assert plan.returncode == 0, plan.stderr
@@ -172,7 +173,14 @@ def test_nuisance_study_end_to_end(tmp_path):
     rows = json.loads((out / "mechanism.json").read_text())
     assert {(r["level"], r["protocol"]) for r in rows} == {(lv, p) for lv in ("none", "x") for p in ("noisy", "transfer")}
     costs = json.loads((out / "costs.json").read_text())
-    assert set(costs) == {"control-x", "none", "x"}
+    assert set(costs) == {"control-x", "control-x-true-onset", "none", "x"}
+    # the true-onset control: the same all-frames backbone (copied, not pretrained again), its own windows
+    assert ((out / "control-x" / "pretrain" / "backbone.pt").read_bytes()
+            == (out / "control-x-true-onset" / "pretrain" / "backbone.pt").read_bytes())
+    assert "true onsets" in (out / "control.md").read_text()
+    config = json.loads((out / "control-x-true-onset" / "cells" / "clean" / "n2" / "oracle" / "seed0" / "config.json")
+                        .read_text())
+    assert config["onset"] == "true"
     assert costs["none"]["trained_cells"] == 18 and costs["none"]["tested_cells"] == 6 and costs["none"]["pretrain_s"] > 0
     # each level pretrains its own backbone, on all of its training frames
     for name in ("none", "x"):
