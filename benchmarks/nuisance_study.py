@@ -54,7 +54,6 @@ class Study:
     def __init__(self, a):
         self.a = a
         self.data, self.out = Path(a.data), Path(a.out)
-        self.out.mkdir(parents=True, exist_ok=True)
         self.costs_path = self.out / "costs.json"
         self.costs = json.loads(self.costs_path.read_text()) if self.costs_path.is_file() else {}
 
@@ -96,11 +95,15 @@ class Study:
                              log=(lambda m: self.log(f"  {name}: {m}")) if self.a.verbose else None,
                              note=lambda m: print(m, file=sys.stderr), overrides={"onset": onset},
                              pretrain_overrides={"contact_only": self.a.pretrain_frames == "contact"}, clean_extra=extra)
-        seconds = round(time.perf_counter() - t0, 1)
-        # A rerun that reuses everything costs nothing new: the first measurement stays.
+        seconds = time.perf_counter() - t0
+        # Each call's wall time adds to the run's (a rerun that reused everything adds nothing).
         if not (res["pretrain"].get("reused") and before == set(out.glob("cells/*/n*/*/seed*/result.json"))):
-            self.record(name, experiment_s=seconds)
-        self.record(name, **cell_costs(out))
+            self.record(name, experiment_s=round(self.costs.get(name, {}).get("experiment_s", 0) + seconds, 1))
+        costs = cell_costs(out)
+        if self.costs.get(name, {}).get("backbone_from"):   # not pretrained here
+            costs.pop("pretrain_s", None)
+            costs.pop("pretrain_epochs", None)
+        self.record(name, **costs)
         return res
 
     def share_backbone(self, source: str, name: str) -> None:
@@ -111,6 +114,7 @@ class Study:
         if name != source and self.a.pretrain_frames == "all" and src.is_file() and not dst.is_file():
             dst.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(src, dst)
+            self.record(name, backbone_from=source)
 
     def plan(self) -> None:
         a = self.a
@@ -141,6 +145,7 @@ class Study:
                                 mechanism_rows, mechanism_summary, onset_line)
 
         a = self.a
+        self.out.mkdir(parents=True, exist_ok=True)
         control = {}
         texts = []
         for lv in a.control_levels:   # 1. the positive control, reported before anything else runs
@@ -229,7 +234,8 @@ def costs_markdown(costs: dict) -> str:
         return "–" if v is None else f"{v:,.0f} s" if v >= 10 else f"{v:.1f} s"
 
     for name, c in costs.items():
-        lines.append(f"| {name} | {s(c.get('generate_s'))} | {s(c.get('experiment_s'))} | {s(c.get('pretrain_s'))} | "
+        pretrain = f"{c['backbone_from']}'s" if c.get("backbone_from") else s(c.get("pretrain_s"))
+        lines.append(f"| {name} | {s(c.get('generate_s'))} | {s(c.get('experiment_s'))} | {pretrain} | "
                      f"{c.get('trained_cells', 0)}, {s(c.get('trained_cell_median_s'))}, "
                      f"{s(c.get('trained_cell_total_s'))} | {c.get('tested_cells', 0)}, "
                      f"{s(c.get('tested_cell_median_s'))} |")

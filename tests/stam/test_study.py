@@ -163,7 +163,7 @@ def test_nuisance_study_end_to_end(tmp_path):
             "--frames", "2", "4", "6", "--control-frames", "2", "4", "6", "--seeds", "1"]
     plan = subprocess.run(args + ["--plan"], capture_output=True, text=True)
     assert plan.returncode == 0, plan.stderr
-    assert "control-x" in plan.stdout and "18 cells trained, 6 tested only" in plan.stdout and not out.joinpath("x").exists()
+    assert "control-x" in plan.stdout and "18 cells trained, 6 tested only" in plan.stdout and not out.exists()
     r = subprocess.run(args, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert r.stdout.index("Positive control") < r.stdout.index("level none done")   # the control comes first
