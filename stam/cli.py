@@ -161,14 +161,16 @@ def _experiment(args) -> int:
         raise StamError(f"--frames {' '.join(map(str, args.frames))}: n must be at least 1; give e.g. 2 3 4")
     stdout = sys.stdout  # progress lines stay on stdout while Ray's own messages go to stderr (gelsim.cluster)
     overrides = {"attention_at": args.attention_at} if args.attention_at else None
+    pretrain = None if args.pretrain_frames is None else {"contact_only": args.pretrain_frames == "contact"}
     with out_folder(args.out):
         res = run_experiment(args.data, args.out, args.preset, args.seeds, args.models, args.frames, args.settings,
                              overrides=overrides, log=None if args.json else (lambda m: print(m, file=stdout)),
-                             note=lambda m: print(m, file=sys.stderr), ray=args.ray)
+                             note=lambda m: print(m, file=sys.stderr), ray=args.ray, pretrain_overrides=pretrain,
+                             clean_extra=args.clean_frames)
     if args.json:
         print_json({k: v for k, v in res.items() if k != "cells"} | {"cells": len(res["cells"])})
     else:
-        for k in ("table1", "table2", "differences_table"):
+        for k in ("table1", "table2", "table2_transfer", "differences_table"):
             if k in res:
                 print(open(res[k]).read())
         print(f"plot: {res['plot']}")
@@ -195,6 +197,12 @@ def _explain(args) -> int:
         res = explain(args.checkpoint, args.sequence, args.out, args.data, args.split)
     return print_result(args.json, res, "\n".join(res["files"]))
 
+
+MODEL_HELP = ("cnn, cnn_sa, stam (the paper's three), or a named variant: cnn_mean_features, cnn_max_features "
+              "(the baseline's fusions), cnn_flatten (one FC on the flattened window, no per-frame head), "
+              "cnn_joint (per-frame head + FC on the flattened window: STAM-paper's head without attention), "
+              "stam_paper (full-width q, k, v and that head: 68.88 M parameters at the paper's size), oracle "
+              "(the CNN on the frames from the detected onset on only)")
 
 TRAIN_HELP = """train one model (writes config.json, log.csv, last.pt, best.pt)
 
@@ -245,8 +253,9 @@ With fewer than {stats.MIN_TEST_SEQUENCES} test sequences it warns; differences.
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .config import SETTINGS
     from .data import DEFAULT_ONSET_THRESHOLD
-    from .models import MODEL_NAMES
+    from .models import MODELS
 
     p = ArgumentParser(prog="stam", formatter_class=HelpFormatter,
                                 description="STAM tactile texture recognition (Cao et al., IROS 2020) on gelsim datasets.")
@@ -262,7 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
         return s
 
     s = cmd("info", _info, "parameter count of a model (beside the paper's figure at its setting)")
-    s.add_argument("--model", choices=MODEL_NAMES, required=True, help="model name")
+    s.add_argument("--model", choices=MODELS, required=True, help=MODEL_HELP)
     s.add_argument("--frames", type=int, default=2, help="n, frames per window")
     s.add_argument("--width", type=float, default=1.0, help="AlexNet channel multiplier (1.0 = full)")
     s.add_argument("--image-size", type=int, default=224, help="input side in px")
@@ -299,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--preset", dest="preset", help=argparse.SUPPRESS)   # the old spelling of --config
     s.add_argument("--data", required=True, help="dataset directory")
     s.add_argument("--out", required=True, help="run directory")
-    s.add_argument("--model", choices=MODEL_NAMES, help="model (default: the config's, stam)")
+    s.add_argument("--model", choices=MODELS, help=MODEL_HELP + " (default: the config's, stam)")
     s.add_argument("--frames", type=int, help="n, frames per window (default: the config's, 2)")
     s.add_argument("--start", choices=("contact", "zero"), help="window start: first contact frame (clean) or frame 0 (noisy)")
     s.add_argument("--epochs", type=int, help="epochs (default: the config's: quick 20, cpu 12, paper 30)")
@@ -328,9 +337,21 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cpu (2 CPU cores), paper (GPU), quick (a small sweep of the quick dataset), or a .toml path")
     s.add_argument("--preset", dest="preset", default="cpu", help=argparse.SUPPRESS)   # the old spelling of --config
     s.add_argument("--seeds", type=int, help="seeds per cell (default from the config: cpu 3, paper 1)")
-    s.add_argument("--models", nargs="+", choices=MODEL_NAMES, help="subset of models (default all)")
+    s.add_argument("--models", nargs="+", choices=MODELS, metavar="MODEL",
+                   help="models (default the config's: cnn, cnn_sa, stam); " + MODEL_HELP)
     s.add_argument("--frames", nargs="+", type=int, help="subset of n (default 2..7)")
-    s.add_argument("--settings", nargs="+", choices=("clean", "noisy"), help="subset of settings (default both)")
+    s.add_argument("--settings", nargs="+", choices=SETTINGS,
+                   help="clean (trained and tested on windows from the detected onset), noisy (from frame 0), "
+                        "transfer (the clean models tested from frame 0: trains the clean cells too) "
+                        "(default the preset's: clean noisy)")
+    s.add_argument("--clean-frames", nargs="+", type=int, metavar="N",
+                   help="more n for the clean setting only, e.g. each n - 1 of --frames: a window from frame 0 that "
+                        "starts o frames before contact holds the clean window of n - o frames, so its frames before "
+                        "contact can be costed against it (differences.md) when --frames skips n (default none)")
+    s.add_argument("--pretrain-frames", choices=("contact", "all"),
+                   help="the frames the backbone is pretrained on: contact (from the detected onset on) or all "
+                        "(the frames before contact too, as a model trained on noisy windows meets them) "
+                        "(default the preset's [pretrain] contact_only: cpu, contact)")
     s.add_argument("--attention-at", choices=("pool5", "conv5"),
                    help="where the attention reads the backbone: pool5, after its last max-pool (the paper's F; "
                         "the configs' default), or conv5, before it, the pool following the attention (7 x 7 "
