@@ -1,5 +1,5 @@
 # Set-up is two commands on a fresh Debian machine with Python 3.11:
-#   make demo   - install into .venv (once), then generate a small dataset
+#   make demo   - install into .venv (once), then generate the quick dataset and train a first model on it
 #   make test   - install into .venv (once), then run the default test suite
 # A second run does no reinstall work: installation is keyed on a stamp file
 # that depends on pyproject.toml and this Makefile.
@@ -15,6 +15,7 @@ GL_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libosmesa6
 STAMP       := $(VENV)/.gelsim-installed
 PYOPENGL_SPEC := PyOpenGL==3.1.10
 DEMO_OUT    ?= out/demo
+DEMO_RUN    ?= $(DEMO_OUT)-run
 
 .PHONY: install demo test test-slow test-extras test-cluster bench gl-libs clean-venv gym ray
 
@@ -59,10 +60,15 @@ ray: $(STAMP)
 	$(PY) -m pip install -q -e ".[ray]"
 	$(PY) -m pip install -q --no-deps "$(PYOPENGL_SPEC)"
 
-# A demo made by older code (after a `git pull`) is renamed to $(DEMO_OUT).stale-N, not deleted.
+# The quick dataset (a demo made by older code, after a `git pull`, is renamed to $(DEMO_OUT).stale-N, not
+# deleted), pictures of one of its sequences, then a first model: stam's quick config trained on it and
+# evaluated on its test split (docs/quickstart.md has the times; a rerun reuses the pretrained backbone).
 demo: $(STAMP)
 	$(VENV)/bin/gelsim generate --preset quick --replace-stale --out $(DEMO_OUT)
-	@echo "demo dataset: $(DEMO_OUT) (manifest: $(DEMO_OUT)/manifest.json, previews: $(DEMO_OUT)/previews/)"
+	$(VENV)/bin/gelsim show $(DEMO_OUT)
+	$(VENV)/bin/stam train --config quick --data $(DEMO_OUT) --out $(DEMO_RUN)
+	$(VENV)/bin/stam evaluate --checkpoint $(DEMO_RUN)/best.pt
+	@echo "demo dataset: $(DEMO_OUT) (manifest.json, previews/); model: $(DEMO_RUN) (best.pt, eval-test.json, confusion-test.png)"
 
 # The default suite, then the wheel test (tests/test_install.py, about 2 min): a wheel of this tree
 # installed into a fresh virtualenv outside the clone makes the quick dataset and runs the README's

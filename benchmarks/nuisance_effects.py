@@ -4,8 +4,11 @@ For a stage-free dataset NONE and copies of it made with the same options and ``
 (``gelsim generate``), per dataset:
 
 * the labels are byte-identical to NONE's (every sequence's labels sha256);
+* the contact frames among each sequence's first two (what Table II's STAM row says keep their content):
+  each frame's mean |difference| from NONE's, DN, and its median over those frames (issue 48's bar: 3 DN);
+* frames that are black (mean under 1 DN), over all frames;
 * how far the frames before contact (the manifest's ``contact_onset``) move from NONE's: mean |difference|
-  in DN, and the share of those frames whose change from NONE's (stam's onset statistic: the 99.9th
+  in DN (mean and median over the frames), the share of them whose largest pixel change exceeds 1 DN, and the share of those frames whose change from NONE's (stam's onset statistic: the 99.9th
   percentile of the RGB distance on 160-px-wide thumbnails) exceeds the onset detector's bar
   (``stam.data.DEFAULT_ONSET_THRESHOLD``, 5 DN: above the H.264 steps of still frames and 6x the camera
   noise measured on lossless video, docs/stam.md), so more than the camera noise;
@@ -57,6 +60,7 @@ def main(argv=None) -> int:
                              "give copies made with the same options and --nuisance")
         lab_same = all(s["sha256"]["labels"] == seqs[s["id"]]["sha256"]["labels"] for s in m["sequences"])
         diffs, over, n_pre, exact, within, n = [], 0, 0, 0, 0, 0
+        early, pre_frames, black, n_frames, over_1dn = [], [], 0, 0, 0
         errors: dict[str, int] = {}
         for s in m["sequences"]:
             fr = read_video(d / s["video"])
@@ -66,9 +70,15 @@ def main(argv=None) -> int:
             ref = cache.get(s["id"])
             if ref is None:
                 ref = cache[s["id"]] = read_video(base / s["video"])
+            black += int((fr.reshape(len(fr), -1).mean(axis=1) < 1.0).sum())
+            n_frames += len(fr)
+            for i in range(max(onset, 0), min(2, len(fr))):
+                early.append(float(np.abs(fr[i].astype(np.float32) - ref[i].astype(np.float32)).mean()))
             if onset > 0:
                 pre, pre_ref = fr[:onset].astype(np.float32), ref[:onset].astype(np.float32)
                 diffs.append(float(np.abs(pre - pre_ref).mean()))
+                pre_frames += [float(v) for v in np.abs(pre - pre_ref).mean(axis=(1, 2, 3))]
+                over_1dn += int((np.abs(pre - pre_ref).max(axis=(1, 2, 3)) > 1.0).sum())
                 if d != base:
                     sc = change_score(thumbnails(fr[:onset]), thumbnails(ref[:onset]))
                     over += int((sc > DEFAULT_ONSET_THRESHOLD).sum())
@@ -85,6 +95,14 @@ def main(argv=None) -> int:
         res = {"dir": str(d), "level": m["options"].get("nuisance", "none"),
                "severity": m["options"].get("nuisance_severity"), "labels_identical": lab_same,
                "precontact_mean_abs_diff_dn": float(np.mean(diffs)) if diffs else 0.0,
+               "precontact_frame_diff_dn": {"mean": float(np.mean(pre_frames)) if pre_frames else 0.0,
+                                            "median": float(np.median(pre_frames)) if pre_frames else 0.0,
+                                            "frames": len(pre_frames), "largest_pixel_over_1dn": over_1dn},
+               "early_contact_frame_diff_dn": {"median": float(np.median(early)) if early else 0.0,
+                                               "mean": float(np.mean(early)) if early else 0.0,
+                                               "p90": float(np.percentile(early, 90)) if early else 0.0,
+                                               "frames": len(early)},
+               "black_frames": black, "frames": n_frames,
                "onset_exact": exact, "onset_within_1": within, "sequences": n,
                "onset_exact_ci": wilson_interval(exact, n), "onset_within_1_ci": wilson_interval(within, n),
                "onset_errors": dict(sorted(errors.items(), key=lambda kv: (kv[0] == "none", int(kv[0]) if kv[0] != "none" else 0)))}
@@ -92,8 +110,13 @@ def main(argv=None) -> int:
             res["precontact_frames_over_bar"] = over
             res["precontact_frames"] = n_pre
         results[name] = res
-        print(f"{name}: level {res['level']} severity {res['severity']}; labels identical {lab_same}; pre-contact |diff| "
-              f"{res['precontact_mean_abs_diff_dn']:.2f} DN"
+        e = res["early_contact_frame_diff_dn"]
+        print(f"{name}: level {res['level']} severity {res['severity']}; labels identical {lab_same}; "
+              f"contact frames in frames 0-1: |diff| median {e['median']:.2f} DN (mean {e['mean']:.2f}, 90th pct "
+              f"{e['p90']:.2f}, {e['frames']} frames); black frames {black}/{n_frames}; pre-contact |diff| "
+              f"{res['precontact_mean_abs_diff_dn']:.2f} DN (per frame: mean {res['precontact_frame_diff_dn']['mean']:.2f}, "
+              f"median {res['precontact_frame_diff_dn']['median']:.2f}; {over_1dn}/{len(pre_frames)} with a pixel "
+              f"changed by more than 1 DN)"
               + (f", {over}/{n_pre} pre-contact frames change by more than the {DEFAULT_ONSET_THRESHOLD:g} DN bar"
                  if d != base else "")
               + f"; onset exact {exact}/{n} ({100 * exact / n:.1f}%), within 1 {within}/{n} ({100 * within / n:.1f}%, "

@@ -10,7 +10,8 @@ behind (:func:`partial_path`; ``gelsim generate`` sweeps such leftovers on resum
 * :func:`atomic_write_bytes`, ``_text``, ``_json``, ``_npz``: whole documents (:func:`json_default`:
   how JSON writers here and ``gelsim.cli.print_json`` store numpy values and paths);
 * :func:`write_png`: the one PNG writer (8-bit grey or colour arrays, OpenCV's encoder);
-* :func:`write_figure`: a matplotlib figure as PNG, the figure closed afterwards.
+* :func:`write_figure`: a matplotlib figure as PNG, the figure closed afterwards;
+* :func:`out_folder`: a command's output folder, removed again when its first run fails before writing.
 
 Unwritable places are a one-line :class:`GelsimError` naming the path.
 """
@@ -154,6 +155,43 @@ def write_figure(path: str | Path, fig, **savefig_kw) -> Path:
     return Path(path)
 
 
+def not_a_folder(path: str | Path) -> str | None:
+    """Why ``path`` is no folder to read or write in (``"folder X does not exist"``, ``"X is a file, not a
+    folder"``), or None when it is one."""
+    path = Path(path)
+    if path.is_dir():
+        return None
+    if path.exists():
+        return f"{path} is a file, not a folder"
+    return f"folder {path} does not exist"
+
+
+@contextmanager
+def out_folder(path: str | Path, option: str = "--out") -> Iterator[Path]:
+    """``with out_folder(out):`` around a command that writes into folder ``path`` (new, or one it resumes):
+    a file of that name is a GelsimError before the block runs, and when the block fails (bad input found
+    late, Ctrl-C) on a ``path`` that did not exist before, the folders it made that hold no file are removed
+    again: a failed first run leaves nothing behind, and one that wrote files keeps them for the next."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise GelsimError(f"{option} {path} is a file, not a folder; give a new folder or one this command "
+                          "wrote before")
+    above = next((p for p in path.parents if p.exists()), None)
+    if above is not None and not above.is_dir():
+        raise GelsimError(f"{option} {path}: {above} is a file, not a folder; choose another {option}")
+    existed = path.exists()
+    try:
+        yield path
+    except BaseException:
+        if not existed and path.is_dir():
+            for folder, _, _ in sorted(os.walk(path), key=lambda entry: -len(entry[0])):  # deepest first
+                try:
+                    os.rmdir(folder)   # only empty folders go; one with a file in it stays
+                except OSError:
+                    pass
+        raise
+
+
 def check_out_file(path: str | Path, suffix: str = ".png") -> Path:
     """Fail early (before any work) on an output file name that cannot be written: a wrong suffix
     (``suffix``, case-insensitive), a folder that does not exist, or a place that is not writable."""
@@ -161,8 +199,9 @@ def check_out_file(path: str | Path, suffix: str = ".png") -> Path:
     if path.suffix.lower() != suffix:
         raise GelsimError(f"{path}: output must be a {suffix} file; give a name ending in {suffix}")
     parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise GelsimError(f"{path}: folder {parent} does not exist; create it or choose another --out")
+    problem = not_a_folder(parent)
+    if problem:
+        raise GelsimError(f"{path}: {problem}; create the folder or choose another --out")
     if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
         raise GelsimError(f"{path}: not writable; choose a writable --out")
     return path

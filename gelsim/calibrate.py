@@ -31,7 +31,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.linalg import LinearOperator, cg, splu, spsolve
 
-from .atomic import atomic_write_npz, atomic_write_text, write_png
+from .atomic import atomic_write_npz, atomic_write_text, not_a_folder, write_png
 from .centres import detect_centres
 from .errors import GelsimError
 from .optics.lut import normal_xy
@@ -821,8 +821,9 @@ def calibrate(pack: DataPack, base_profile, out_path: str | Path, *, frames: str
     out_path = Path(out_path)
     if out_path.suffix != ".toml":
         raise GelsimError(f"--out {out_path} must end in .toml; the table and background go beside it")
-    if not out_path.parent.is_dir():
-        raise GelsimError(f"folder {out_path.parent} does not exist; create it or choose another --out")
+    problem = not_a_folder(out_path.parent)
+    if problem:
+        raise GelsimError(f"{problem}; create the folder or choose another --out")
     idx, _ = check_pack(pack, frames, mm_per_px, ball_diameter_mm)
     h, w = pack.shape
     log = log or (lambda msg: None)

@@ -1,7 +1,7 @@
 """Ray, for running independent units of work on a cluster: the sequences of ``gelsim generate --ray``
 and the cells of ``stam experiment --ray``.
 
-Ray is an optional extra (``make ray`` / ``pip install gelsim[ray]``); nothing here imports it
+Ray is an optional extra (``make ray``, or ``pip install ray==2.60.0``); nothing here imports it
 until :func:`connect` is called. Ray does the scheduling, the retries of tasks whose worker
 died and the placement on nodes; this module only
 
@@ -45,7 +45,7 @@ MAX_RETRIES = 3
 #: Tasks in flight per cluster CPU: enough queued that a freed CPU never waits for the driver, few
 #: enough that a 100-node cluster's driver does not hold hundreds of thousands of task references.
 IN_FLIGHT_PER_CPU = 2
-INSTALL_HINT = "run `make ray` or `pip install gelsim[ray]`"
+INSTALL_HINT = "run `make ray` in the clone, or `pip install ray==2.60.0`"
 
 
 def import_ray():

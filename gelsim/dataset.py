@@ -169,8 +169,10 @@ class Route:
 MAX_UNITS = 1000
 
 PRESETS: dict[str, dict[str, Any]] = {
-    # A first look in 6-15 s on 2 cores (measured 2026-11-28; 14 s on a slow day): 10 fabrics x 3 sequences at 320x240.
-    "quick": dict(fabrics=10, sequences_per_fabric=3, resolution=(320, 240), fidelity="fast"),
+    # A first look, and a first trained and evaluated model (`stam train --config quick`): 10 fabrics x 4
+    # sequences at 320x240, split 2:1:1 per fabric (20 training, 10 validation, 10 test sequences; the
+    # paper's 7:2:1 of 3 left no test sequence). Times: docs/quickstart.md.
+    "quick": dict(fabrics=10, sequences_per_fabric=4, resolution=(320, 240), fidelity="fast", split=(2.0, 1.0, 1.0)),
     # What `stam experiment --preset cpu` is sized for: all fabrics at 320x240 with the full-resolution
     # imprint (balanced): at 160x120 (0.12 mm/px) the finer weaves fall below two pixels per yarn and
     # STAM learns nothing.
@@ -199,6 +201,9 @@ class SequenceSpec:
 
     def labels_rel(self) -> str:
         return schema.labels_path(self.fabric_id, self.id)
+
+    def nuisance_rel(self) -> str:
+        return schema.nuisance_path(self.fabric_id, self.id)
 
 
 # ---------------------------------------------------------------- planning
@@ -240,9 +245,9 @@ def parse_resolution(text: str) -> tuple[int, int]:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise GelsimError(f"--resolution {text!r} is malformed; give WIDTHxHEIGHT, e.g. 320x240") from None
-    if w < 16 or h < 16:
-        raise GelsimError(f"--resolution {text!r} is too small; use at least 16x16")
-    return w, h
+    if w < 1 or h < 1:
+        raise GelsimError(f"--resolution {text!r} is malformed; give WIDTHxHEIGHT in whole pixels, e.g. 320x240")
+    return w, h   # the sensor's own range is checked with its profile (SensorProfile.with_resolution)
 
 
 def apportion(total: int, weights: Iterable[float]) -> list[int]:
@@ -355,6 +360,22 @@ def check_frames(config: GenerateConfig) -> None:
 def unit_seed(seed: int, unit: int) -> int:
     """The draw seed of sensor unit ``unit`` of the dataset seeded ``seed`` (its own stream)."""
     return int(np.random.SeedSequence([seed, unit, 0x0D17]).generate_state(1)[0])
+
+
+def dataset_flat_frame(manifest: dict, sequence: dict | None = None):
+    """The flat gel of a dataset's sensor as its frames show it (:func:`gelsim.annotate.flat_frame`): uint8 RGB
+    (H, W, 3) at the dataset's resolution, rendered from the manifest's options for ``sequence``'s sensor unit
+    (its manifest entry; None or no ``unit``: the profile itself)."""
+    from .annotate import flat_frame
+
+    known = {f.name for f in dataclasses.fields(GenerateConfig)}
+    opts = {k: tuple(v) if isinstance(v, list) else v for k, v in manifest.get("options", {}).items() if k in known}
+    config = GenerateConfig(**opts)
+    profile = resolve_profile(config)
+    unit = int((sequence or {}).get("unit", -1))
+    if unit >= 0:
+        profile = unit_profiles(config, profile)[unit]
+    return flat_frame(profile, config.fidelity, config.seed)
 
 
 def unit_profiles(config: GenerateConfig, profile) -> list:
@@ -504,12 +525,16 @@ def nuisance_level(config: GenerateConfig) -> dict:
     """``config.nuisance``'s stages at ``config.nuisance_severity``: ``nuisance`` (stage -> severity; empty for
     ``none``, which loads nothing)
     and ``nuisance_stages`` (their parameters, or None). An unknown level is a one-line GelsimError."""
-    if config.nuisance == "none" and config.nuisance_severity is None:
+    if config.nuisance == "none":
+        if config.nuisance_severity is not None:   # it would change nothing, yet be recorded
+            raise GelsimError("--nuisance-severity scales the stages of a --nuisance level, and none is set; add "
+                              "--nuisance camera or handheld, or drop --nuisance-severity")
         return dict(nuisance={}, nuisance_stages=None)
     from .nuisance import load_nuisance
 
     model = load_nuisance()
-    return dict(nuisance=model.level(config.nuisance, config.nuisance_severity), nuisance_stages=model.stages)
+    return dict(nuisance=model.level(config.nuisance, config.nuisance_severity),
+                nuisance_stages=model.stages_for(config.nuisance))
 
 
 def _renderer(profile):
@@ -584,6 +609,7 @@ def _motion(spec: SequenceSpec):
 
 def generate_sequence(spec: SequenceSpec) -> dict:
     """Simulate, render, encode and record one sequence (in a worker). Returns its record."""
+    from .nuisance.record import NuisanceLog
     from .sequence import render_sequence
     from .sinks import drain
     from .stream import stage_clock
@@ -597,15 +623,16 @@ def generate_sequence(spec: SequenceSpec) -> dict:
     t0 = time.perf_counter()
     motion = _motion(spec)
     vpath = root / video_path(spec.video_stem(), config.format)
+    npath = root / spec.nuisance_rel()
     with _frame_sinks(renderer, vpath, profile.image.fps_hz) as (options, sinks):
         labels, timings = drain(render_sequence(fabric, motion, profile, fidelity, seed=spec.seed, options=options),
-                                sinks)
+                                [*sinks, NuisanceLog(npath)])
     te = stage_clock()
     lpath = root / spec.labels_rel()
     atomic_write_npz(lpath, **labels)
     timings["encode"] = timings.get("encode", 0.0) + stage_clock() - te
     return _record(spec, motion, root, vpath, lpath, labels, timings, time.perf_counter() - t0,
-                   _device_name(renderer))
+                   _device_name(renderer), npath)
 
 
 def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None) -> list[dict]:
@@ -617,6 +644,7 @@ def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None
     written already, so that each sequence is made in its own group). Returns their records, whose stage times
     are their shares of the group's (the CPU part, ``fabric`` and ``physics``, their own)."""
     from .engines import TorchEngine
+    from .nuisance.record import NuisanceLog
     from .sequence import render_sequences
     from .sinks import VideoSink, drain_each
     from .stream import stage_clock
@@ -631,10 +659,11 @@ def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None
     t0 = time.perf_counter()
     motions = [_motion(spec) for spec in specs]
     paths = {s.id: root / video_path(s.video_stem(), config.format) for s in specs if s.id in write}
+    npaths = {s.id: root / s.nuisance_rel() for s in specs if s.id in write}
     engine = TorchEngine(renderer.device, optics_batch=w["route"].batch)
     with contextlib.ExitStack() as stack:
-        sinks = [[stack.enter_context(VideoSink(paths[s.id], fmt=config.format, fps=profile.image.fps_hz))]
-                 if s.id in write else [] for s in specs]
+        sinks = [[stack.enter_context(VideoSink(paths[s.id], fmt=config.format, fps=profile.image.fps_hz)),
+                  NuisanceLog(npaths[s.id])] if s.id in write else [] for s in specs]
         results = drain_each(render_sequences([(fabric, m, s.seed) for s, m in zip(specs, motions)], profile, fidelity,
                                               options=_options(renderer=renderer), engine=engine), sinks)
     wall = time.perf_counter() - t0
@@ -649,14 +678,14 @@ def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None
         atomic_write_npz(lpath, **labels)
         timings["encode"] = timings.get("encode", 0.0) + stage_clock() - te
         records.append(_record(spec, motion, root, paths[spec.id], lpath, labels, timings,
-                               wall * motion.num_frames / frames, device))
+                               wall * motion.num_frames / frames, device, npaths[spec.id]))
     return records
 
 
 def _record(spec: SequenceSpec, motion, root: Path, vpath: Path, lpath: Path, labels: dict, timings: dict,
-            seconds: float, device: str) -> dict:
-    """Write and return the record of ``spec`` (its ``motion``), whose video and labels are in place: written
-    last, it marks the sequence finished."""
+            seconds: float, device: str, npath: Path | None = None) -> dict:
+    """Write and return the record of ``spec`` (its ``motion``), whose video, labels and nuisance record (at
+    ``npath``; None: not written) are in place: written last, it marks the sequence finished."""
     in_contact = np.asarray(labels["in_contact"], bool)
     onset = int(np.argmax(in_contact)) if in_contact.any() else -1
     record = dict(id=spec.id, fabric_id=spec.fabric_id, action=spec.action, num_frames=motion.num_frames,
@@ -666,6 +695,9 @@ def _record(spec: SequenceSpec, motion, root: Path, vpath: Path, lpath: Path, la
                   peak_force_n=float(np.max(labels["normal_force_n"])),
                   timings_s={k: round(v, 4) for k, v in timings.items()},
                   seconds=round(seconds, 3), device=device)
+    if npath is not None:
+        record["nuisance"] = str(npath.relative_to(root))
+        record["sha256"]["nuisance"] = sha256_of(npath)
     if spec.unit >= 0:
         record["unit"] = spec.unit
     atomic_write_json(root / schema.record_path(spec.id), record)
@@ -929,6 +961,18 @@ def _sequence_results(config: GenerateConfig, route: Route, root: Path, todo: li
         pool.join()
 
 
+def check_workers(workers: int | None) -> int:
+    """The worker processes a local run starts: ``workers`` (None: one per core), checked to be 1 to the
+    machine's cores (more processes than cores only share them, and a typo of 100,000 would fork as many)."""
+    cores = os.cpu_count() or 1
+    if workers is None:
+        return cores
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= cores:
+        raise GelsimError(f"--workers {workers} is out of range; give 1 to {cores} (this machine's cores; "
+                          "the default is all of them)")
+    return workers
+
+
 def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = None,
              progress: Callable[[int, int, dict], None] | None = None, previews: bool = True,
              ray: str | None = None, replace_stale: bool = False,
@@ -956,6 +1000,8 @@ def generate(config: GenerateConfig, out: str | Path, *, workers: int | None = N
         raise GelsimError(f"--units {config.units} is out of range; give 0 (the profile itself) to {MAX_UNITS}")
     unit_profiles(config, profile)  # a profile without [unit_variation] fails here, before anything is written
     nuisance_level(config)          # an unknown level fails here too
+    if ray is None or ray == "local":   # (a cluster's CPUs are its own: gelsim.cluster.connect says so)
+        check_workers(workers)
     specs = plan(config, len(catalog))
     root = Path(out)
     connection = contextlib.nullcontext(None)
@@ -1005,7 +1051,7 @@ def _generate_in(config, route: Route, root: Path, catalog, profile, specs, work
     if previews:
         from .previews import write_previews
 
-        write_previews(root, manifest)
+        write_previews(root, manifest, lambda sequence: dataset_flat_frame(manifest, sequence))
     atomic_write_json(root / schema.MANIFEST, manifest)
     if previews and manifest["complete"]:
         from .stats import write_stats
@@ -1040,10 +1086,12 @@ def summarize_timings(root: str | Path, manifest: dict) -> dict:
 def verify(root: str | Path, *, decode: bool = True, progress: Callable[[int, int], None] | None = None) -> list[str]:
     """Check every file against the manifest; returns a list of faults (empty when sound).
 
-    Checks: manifest complete; each sequence's video and labels present, their checksums
-    as recorded, the video decodes to ``num_frames`` frames and the labels hold every key of
-    :data:`gelsim.schema.LABELS` with its shape (one row per frame) and dtype.
+    Checks: manifest complete; each sequence's video and labels (and per-frame nuisance record, in datasets
+    that have one) present, their checksums as recorded, the video decodes to ``num_frames`` frames, the labels
+    hold every key of :data:`gelsim.schema.LABELS` and the record every key of
+    :data:`gelsim.nuisance.record.RECORD`, with their shapes (one row per frame) and dtypes.
     """
+    from .nuisance.record import record_problems
     from .video import count_frames
 
     root = Path(root)
@@ -1058,7 +1106,8 @@ def verify(root: str | Path, *, decode: bool = True, progress: Callable[[int, in
             faults.append(f"{sid}: not generated yet")
             continue
         v, lab = root / s["video"], root / s["labels"]
-        for kind, p in (("video", v), ("labels", lab)):
+        nui = root / s["nuisance"] if "nuisance" in s else None
+        for kind, p in (("video", v), ("labels", lab)) + ((("nuisance", nui),) if nui is not None else ()):
             if not p.exists():
                 faults.append(f"{sid}: {kind} {s[kind]} is missing")
             elif sha256_of(p) != s["sha256"][kind]:
@@ -1077,6 +1126,12 @@ def verify(root: str | Path, *, decode: bool = True, progress: Callable[[int, in
                     faults += [f"{sid}: {p}" for p in schema.label_problems(z, s["num_frames"])]
             except Exception as e:  # any unreadable npz is a fault to report, not to crash on
                 faults.append(f"{sid}: labels unreadable ({type(e).__name__})")
+        if nui is not None and nui.exists():
+            try:
+                with np.load(nui) as z:
+                    faults += [f"{sid}: {p}" for p in record_problems(z, s["num_frames"])]
+            except Exception as e:  # as above
+                faults.append(f"{sid}: nuisance record unreadable ({type(e).__name__})")
         if progress:
             progress(k + 1, len(seqs))
     return faults

@@ -142,6 +142,14 @@ def press_report(obj: TouchedObject, force_n: float, *, profile: str | Path | Se
     prof = _profile(profile)
     if resolution_px is not None:
         prof = prof.with_resolution(resolution_px)
+    from .gel import gel_capacity_n
+
+    capacity = gel_capacity_n(prof)
+    if force_n > capacity:
+        # Beyond it the pad bottoms out whatever presses, and Hertz's figures for that force describe
+        # nothing the gel could show: a comparison of nothing.
+        raise GelsimError(f"--force-n {force_n:g} is more than the {prof.name} gel can carry ({capacity:.0f} N with its "
+                          "whole field pressed to its travel); give a smaller force")
     fid = get_fidelity(fidelity)
     obj = as_object(obj)
     t0 = time.perf_counter()

@@ -19,6 +19,11 @@ def _load_mesh_cached(path: str, mtime_ns: int):
 
     try:
         m = trimesh.load(path, force="mesh")
+    except ImportError:
+        # A file that is neither a binary nor a plain-text mesh sends trimesh to guess its text encoding with
+        # an optional package: whatever that guess, the file is no mesh (it named the missing package).
+        raise GelsimError(f"cannot read mesh {path}: it is neither a binary nor a text mesh; give a valid "
+                          ".stl/.obj file") from None
     except Exception as e:  # trimesh raises many kinds of errors on bad files
         raise GelsimError(f"cannot read mesh {path} ({e}); give a valid .stl/.obj file") from None
     if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:

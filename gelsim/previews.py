@@ -9,6 +9,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from . import annotate
+from .annotate import caption, stretched_difference, stretched_differences
 from .atomic import write_png
 from .crop import STAM_CPU_CROP, crop_box_px
 from .errors import GelsimError
@@ -16,32 +18,31 @@ from .firstlook import write_first_look
 from .schema import ACTIONS, PREVIEWS_DIR
 from .video import read_video
 
-LABEL_SCALE = 0.4  # OpenCV Hershey font scale for 160-320 px tiles
-LINE_PX = 14       # baseline spacing of label lines at LABEL_SCALE (the font is about 9 px tall there)
-
-
 def _label(img: np.ndarray, text: str, line: int = 0) -> np.ndarray:
-    """``img`` with ``text`` in white on a black outline, on label line ``line`` from the top."""
-    out = img.copy()
-    org = (4, LINE_PX * (line + 1))
-    cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, LABEL_SCALE, (0, 0, 0), 3, cv2.LINE_AA)
-    cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, LABEL_SCALE, (255, 255, 255), 1, cv2.LINE_AA)
-    return out
+    """``img`` with ``text`` in white on a black outline, on caption line ``line`` from the top."""
+    return caption(img, [text], first_line=line)
 
 
 def _tile(img: np.ndarray, width: int) -> np.ndarray:
-    h = round(img.shape[0] * width / img.shape[1])
-    return cv2.resize(img, (width, h), interpolation=cv2.INTER_AREA)
+    return annotate.tile(img, width)
 
 
-def frame_strip(frames: np.ndarray, n: int = 6, width: int = 240, onset: int | None = None) -> np.ndarray:
-    """``n`` evenly spaced frames side by side, each labelled with its index (and contact state)."""
+def frame_strip(frames: np.ndarray, n: int = 6, width: int = 240, onset: int | None = None,
+                flat: np.ndarray | None = None) -> np.ndarray:
+    """``n`` evenly spaced frames side by side, each labelled with its index (and contact state); with the
+    sensor's ``flat`` gel (uint8 (H, W, 3)), a second row below: each frame minus it, contrast stretched with
+    each frame's gain in its caption (:func:`gelsim.annotate.stretched_differences`)."""
     idx = np.linspace(0, len(frames) - 1, n).round().astype(int)
     tiles = []
     for i in idx:
         tag = f"t={i}" + ("" if onset is None else (" contact" if i >= onset >= 0 else " pre"))
         tiles.append(_label(_tile(frames[i], width), tag))
-    return np.concatenate(tiles, axis=1)
+    strip = np.concatenate(tiles, axis=1)
+    if flat is None:
+        return strip
+    diffs, gains = stretched_differences(frames[idx], flat)
+    below = [_label(_tile(d, width), f"minus flat gel x{g:.0f}") for d, g in zip(diffs, gains)]
+    return np.concatenate([strip, np.concatenate(below, axis=1)], axis=0)
 
 
 def centre_crop(frame: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -52,22 +53,41 @@ def centre_crop(frame: np.ndarray, width: int, height: int) -> np.ndarray:
     return frame[y0:y0 + th, x0:x0 + tw]
 
 
-def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Path]:
-    """Write ``previews/<action>.png`` strips, ``previews/contact_sheet.png`` (per fabric, its peak-force
-    frame scaled to ``tile_px`` wide) and ``previews/texture_sheet.png`` (the same frames' central
-    ``tile_px`` x 3/4 ``tile_px`` pixels at their own scale: a 960x720 frame's fine weaves vanish when
-    the whole frame is scaled to 160 px); returns the paths."""
+class FlatFrames:
+    """The flat gel of each sensor unit of a dataset, ``flat(sequence)`` (uint8 (H, W, 3); the dataset's:
+    :func:`gelsim.dataset.dataset_flat_frame`) called once per unit."""
+
+    def __init__(self, flat):
+        self.flat = flat
+        self._flat: dict[int, np.ndarray] = {}
+
+    def __call__(self, sequence: dict) -> np.ndarray:
+        unit = int(sequence.get("unit", -1))
+        if unit not in self._flat:
+            self._flat[unit] = self.flat(sequence)
+        return self._flat[unit]
+
+
+def write_previews(root: Path, manifest: dict, flat, *, tile_px: int = 160) -> list[Path]:
+    """Write ``previews/<action>.png`` strips (frames above, each minus the flat gel below),
+    ``previews/contact_sheet.png`` (per fabric, its peak-force frame scaled to ``tile_px`` wide, above the
+    same minus the flat gel) and ``previews/texture_sheet.png`` (the same frames' central ``tile_px`` x 3/4
+    ``tile_px`` pixels at their own scale, above their difference: a 960x720 frame's fine weaves vanish when
+    the whole frame is scaled to 160 px), then the first look (:func:`gelsim.firstlook.write_first_look`);
+    returns the paths. ``flat(sequence)``: the flat gel of ``sequence``'s sensor, uint8 (H, W, 3) (the
+    dataset's: :func:`gelsim.dataset.dataset_flat_frame`)."""
     root = Path(root)
     out_dir = root / PREVIEWS_DIR
     out_dir.mkdir(exist_ok=True)
     seqs = [s for s in manifest["sequences"] if "video" in s]
+    flats = FlatFrames(flat)
     written = []
     for action in ACTIONS:
         s = next((s for s in seqs if s["action"] == action), None)
         if s is None:
             continue
         frames = read_video(root / s["video"])
-        strip = frame_strip(frames, onset=s.get("contact_onset"))
+        strip = frame_strip(frames, onset=s.get("contact_onset"), flat=flats(s))
         p = out_dir / f"{action}.png"
         write_png(p, strip)
         written.append(p)
@@ -81,16 +101,21 @@ def write_previews(root: Path, manifest: dict, *, tile_px: int = 160) -> list[Pa
         seen.add(s["fabric_id"])
         with np.load(root / s["labels"]) as z:
             k = int(np.argmax(z["normal_force_n"]))
-        frames = read_video(root / s["video"])
+        frame = read_video(root / s["video"])[k]
+        diff, gain = stretched_difference(frame, flats(s))
         name = f"{s['fabric_id']} {names.get(s['fabric_id'], '')}"[:28]
-        tiles.append(_label(_tile(frames[k], tile_px), name))
-        crops.append(_label(centre_crop(frames[k], tile_px, round(tile_px * 3 / 4)), name))
+        th = round(tile_px * 3 / 4)
+        tiles.append(np.concatenate([_label(_tile(frame, tile_px), name),
+                                     _label(_tile(diff, tile_px), f"minus flat gel x{gain:.0f}")], axis=0))
+        crops.append(np.concatenate([_label(centre_crop(frame, tile_px, th), name),
+                                     _label(centre_crop(diff, tile_px, th), f"minus flat gel x{gain:.0f}")], axis=0))
     for sheet, parts in (("contact_sheet", tiles), ("texture_sheet", crops)):
         if parts:
             p = out_dir / f"{sheet}.png"
             write_png(p, _grid(parts, min(10, len(parts))))
             written.append(p)
-    written += write_first_look(out_dir, manifest)   # the fabrics at 960x720 and what the contact changed
+    # the fabrics at 960x720 and what the contact changed; with a nuisance, its frames before contact
+    written += write_first_look(out_dir, manifest, root=root, flat=flats)
     return written
 
 
@@ -178,6 +203,10 @@ def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int 
                 # edges in source px -> tile px (pixel centres at integers in both)
                 return int(round((x + 0.5) * scale - 0.5)), int(round((y + 0.5) * scale - 0.5))
 
+            tile = _label(tile, f"{s['fabric_id']} {names.get(s['fabric_id'], '')}, {fam}"[:40])
+            tile = _label(tile, f"{action} {lab['normal_force_n'][k]:.1f} N {lab['contact_area_mm2'][k]:.0f} mm2",
+                          line=1)
+            # the boxes over the captions: on a small tile they cross them
             x0, y0, x1, y1 = crop_box_px(w, h, crop)
             cv2.rectangle(tile, px(x0, y0), px(x1, y1), CROP_COLOUR, 1)
             if "contact_bbox_px" in lab and np.isfinite(lab["contact_bbox_px"][k]).all():
@@ -185,9 +214,6 @@ def action_sheet(root: Path, manifest: dict, *, families: int = 6, tile_px: int 
                 cv2.rectangle(tile, px(bx0, by0), px(bx1, by1), CONTACT_COLOUR, 1)
                 cx, cy = (float(v) for v in lab["contact_centroid_px"][k])
                 cv2.drawMarker(tile, px(cx, cy), CONTACT_COLOUR, cv2.MARKER_CROSS, 9, 1)
-            tile = _label(tile, f"{s['fabric_id']} {names.get(s['fabric_id'], '')}, {fam}"[:40])
-            tile = _label(tile, f"{action} {lab['normal_force_n'][k]:.1f} N {lab['contact_area_mm2'][k]:.0f} mm2",
-                          line=1)
             tiles.append(tile)
     shape = next(t.shape for t in tiles if t is not None)
     blank = np.full(shape, 255, np.uint8)

@@ -144,8 +144,9 @@ def load_datapack(path: str | Path, channel_order: str = "bgr") -> DataPack:
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files if k in REQUIRED_KEYS}
-    except (OSError, ValueError, zipfile.BadZipFile) as e:
-        raise GelsimError(f"data pack {path} cannot be read ({e}); give a numpy .npz file") from None
+    except (OSError, ValueError, zipfile.BadZipFile):
+        raise GelsimError(f"data pack {path} cannot be read: it is not a numpy .npz file; give an .npz with "
+                          f"{', '.join(REQUIRED_KEYS)}") from None
     return check_datapack(data, str(path), channel_order)
 
 

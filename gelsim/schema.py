@@ -38,6 +38,7 @@ MANIFEST = "manifest.json"
 VIDEOS_DIR = "videos"
 LABELS_DIR = "labels"
 RECORDS_DIR = "records"
+NUISANCE_DIR = "nuisance"
 PREVIEWS_DIR = "previews"
 
 
@@ -56,6 +57,11 @@ def video_stem(fabric_id: int, seq_id: str) -> str:
 def labels_path(fabric_id: int, seq_id: str) -> str:
     """``labels/fNNN/<id>.npz``."""
     return f"{LABELS_DIR}/f{fabric_id:03d}/{seq_id}.npz"
+
+
+def nuisance_path(fabric_id: int, seq_id: str) -> str:
+    """``nuisance/fNNN/<id>.npz``: the sequence's per-frame nuisance record (:mod:`gelsim.nuisance.record`)."""
+    return f"{NUISANCE_DIR}/f{fabric_id:03d}/{seq_id}.npz"
 
 
 def record_path(seq_id: str) -> str:
@@ -119,9 +125,10 @@ def make_manifest(*, complete: bool, generator_version: str, seed: int, options:
 
 
 def sequence_entry(record: Mapping[str, Any]) -> dict:
-    """The manifest's entry of a finished sequence from its record (SEQUENCE_FIELDS, ``unit`` if any;
-    timings stay in the record: they vary from run to run)."""
-    return {k: record[k] for k in SEQUENCE_FIELDS + (("unit",) if "unit" in record else ())}
+    """The manifest's entry of a finished sequence from its record (SEQUENCE_FIELDS, ``nuisance`` and ``unit``
+    if any: datasets made before the nuisance record have none; timings stay in the record: they vary from run
+    to run)."""
+    return {k: record[k] for k in SEQUENCE_FIELDS + tuple(k for k in ("nuisance", "unit") if k in record)}
 
 
 def manifest_problem(m: Any) -> str | None:
@@ -145,7 +152,8 @@ def load_manifest(root: str | Path, *, complete: bool = False, error: type[Gelsi
     root = Path(root)
     path = root / MANIFEST
     if not root.is_dir():
-        raise error(f"dataset directory {root} does not exist; give the --out directory of gelsim generate")
+        what = "is a file, not a dataset directory" if root.exists() else "does not exist"
+        raise error(f"dataset directory {root} {what}; give the --out directory of gelsim generate")
     if not path.is_file():
         raise error(f"{root} is not a gelsim dataset (no {MANIFEST}); give a directory made by gelsim generate")
     try:

@@ -22,6 +22,7 @@ arrays are ``(H, W)`` or ``(H, W, 3)`` with row index along ``y``.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -207,21 +208,38 @@ class SensorProfile:
         """Field of view ``(width, height)`` on the gel in mm."""
         return (self.image.width_px * self.image.mm_per_px, self.image.height_px * self.image.mm_per_px)
 
+    def resolution_range(self) -> tuple[tuple[int, int], tuple[int, int]]:
+        """The smallest and largest ``(width, height)`` px this sensor can be imaged at over its field
+        (:meth:`with_resolution`): at most ImageSpec's largest mm per pixel and its pixel counts, the
+        smallest at the profile's aspect ratio."""
+        fw, _ = self.field_mm
+        lo_w = max(int(_limit("width_px", "lo")), math.ceil(fw / _limit("mm_per_px", "hi") - 1e-9))
+        lo_h = max(int(_limit("height_px", "lo")), math.ceil(lo_w * self.image.height_px / self.image.width_px))
+        return (lo_w, lo_h), (int(_limit("width_px", "hi")), int(_limit("height_px", "hi")))
+
     def with_resolution(self, width_px: int, height_px: int | None = None) -> "SensorProfile":
         """The same sensor (same field of view in mm) imaged at another resolution.
 
         ``height_px`` defaults to keeping the aspect ratio. Used for reduced-size
         datasets and tests; every parameter in mm stays the same.
         """
+        (lo_w, lo_h), (hi_w, hi_h) = self.resolution_range()
         if height_px is None:
-            height_px = max(16, round(width_px * self.image.height_px / self.image.width_px))
-        if width_px < 16 or height_px < 16:
-            raise GelsimError(f"resolution {width_px}x{height_px} is too small; use at least 16x16 px")
+            height_px = max(lo_h, round(width_px * self.image.height_px / self.image.width_px))
+        if not (lo_w <= width_px <= hi_w and lo_h <= height_px <= hi_h):
+            raise GelsimError(f"resolution {width_px}x{height_px} is out of range for {self.name}; give {lo_w}x{lo_h} "
+                              f"to {hi_w}x{hi_h} px (its {self.field_mm[0]:.1f} mm field at most "
+                              f"{_limit('mm_per_px', 'hi'):g} mm per pixel)")
         scale = self.image.width_px / width_px
         image = dataclasses.replace(self.image, width_px=int(width_px), height_px=int(height_px),
                                     mm_per_px=self.image.mm_per_px * scale)
         check_ranges(image, f"{self.name} at {width_px}x{height_px} px")
         return dataclasses.replace(self, image=image)
+
+
+def _limit(name: str, bound: str) -> float:
+    """ImageSpec's declared bound (``"lo"`` or ``"hi"``) of its field ``name``."""
+    return next(f for f in dataclasses.fields(ImageSpec) if f.name == name).metadata[bound]
 
 
 def list_profiles() -> list[str]:

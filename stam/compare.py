@@ -21,10 +21,9 @@ import numpy as np
 
 from . import stats
 from .errors import StamError
-from .experiment import SHORT_LABELS, _ci_text, _correct, _interval, _shift_spread
-
-SETTING_ORDER = ("clean", "noisy")
-MODEL_ORDER = ("cnn", "cnn_sa", "stam")
+from .config import SETTINGS as SETTING_ORDER
+from .experiment import _ci_text, _correct, _interval, _shift_spread, short_label, versus_cnn
+from .models import MODELS as MODEL_ORDER
 
 
 def load_cells(run: str | Path) -> dict[tuple[str, int, str], list[dict]]:
@@ -97,7 +96,7 @@ def compare_runs(a: str | Path, b: str | Path) -> dict:
         column(("mean", s, m), [t for n in ns for t in change((s, n, m), 1 / len(ns))])
     gains = []
     for s in SETTING_ORDER:
-        for m in ("stam", "cnn_sa"):
+        for m in versus_cnn(MODEL_ORDER):
             ns = [n for n in groups.get((s, m), []) if n in groups.get((s, "cnn"), [])]
             if not ns:
                 continue
@@ -150,13 +149,13 @@ def markdown(result: dict) -> str:
         for mean in [r for r in result["means"] if r["setting"] == s]:
             by_n = {c["frames"]: c for c in result["cells"] if c["setting"] == s and c["model"] == mean["model"]}
             row = [_ci(by_n[n]["difference"]) if n in by_n else "" for n in frames]
-            lines.append(f"| {SHORT_LABELS.get(mean['model'], mean['model'])} | " + " | ".join(row)
+            lines.append(f"| {short_label(mean['model'])} | " + " | ".join(row)
                          + f" | {mean['a']:.1f}, {mean['b']:.1f}, {_ci(mean['difference'])} |")
         lines.append("")
     if result["gains"]:
-        lines += ["Attention over the CNN, averaged over n:", "", "| gain | A | B | B − A |", "|---|---|---|---|"]
+        lines += ["Each model over the CNN, averaged over n:", "", "| gain | A | B | B − A |", "|---|---|---|---|"]
         for g in result["gains"]:
-            lines.append(f"| {SHORT_LABELS.get(g['model'], g['model'])} − CNN, {g['setting']} | {_ci(g['a'])} | "
+            lines.append(f"| {short_label(g['model'])} − CNN, {g['setting']} | {_ci(g['a'])} | "
                          f"{_ci(g['b'])} | {_ci(g['difference'])} |")
         lines.append("")
     d = result["all_cells"]

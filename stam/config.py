@@ -1,4 +1,4 @@
-"""stam's configuration: TOML presets into frozen, validated dataclasses.
+"""stam's configuration: TOML configs (called presets in the code) into frozen, validated dataclasses.
 
 A preset (``stam/configs/<name>.toml`` or any ``.toml`` path) has up to three sections:
 
@@ -14,6 +14,7 @@ naming the file and key. ``stam train`` and ``stam experiment`` read the same pr
 from __future__ import annotations
 
 import dataclasses
+import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +27,7 @@ from .data import DEFAULT_ONSET_THRESHOLD
 from .errors import StamError
 
 CONFIG_DIR = package_dir("stam", "configs")
-# Without a GPU, `stam train` with no --preset uses the cpu preset: the library defaults (full
+# Without a GPU, `stam train` with no --config uses the cpu config: the library defaults (full
 # AlexNet from scratch at 224 px) take about 2 minutes an epoch on 2 cores and stay at chance for
 # the first epochs; with one, the paper preset (the paper's setting).
 CPU_PRESET = "cpu"
@@ -40,7 +41,7 @@ class TrainConfig:
     data: str = ""                 # dataset directory (gelsim generate --out)
     out: str = ""                  # run directory
     preset: str = ""               # the preset this config was resolved from ("" = none), for the record
-    model: str = "stam"            # cnn | cnn_sa | stam (stam.models.MODEL_NAMES)
+    model: str = "stam"            # cnn | cnn_sa | stam, or a named variant (stam.models.MODELS)
     frames: int = param(2, lo=1, hi=64, doc="n consecutive frames per window")
     start: Literal["contact", "zero"] = "contact"   # contact (clean, Table I) | zero (noisy, Table II)
     onset: Literal["detected", "true"] = "detected"
@@ -48,7 +49,7 @@ class TrainConfig:
     image_size: int = param(224, lo=64, hi=1024, doc="px, square model input")
     crop: float = param(1.0, lo=0.05, hi=1.0, doc="centred square kept, fraction of the shorter side")
     width: float = param(1.0, lo=0.0, hi=4.0, lo_open=True, doc="AlexNet channel multiplier")
-    fusion: Literal["mean_logits", "mean_features", "max_features"] = "mean_logits"
+    fusion: Literal["mean_logits", "mean_features", "max_features", "flatten", "joint", "onset"] = "mean_logits"
     modules: int = param(10, lo=1, doc="temporal attention modules in parallel")
     combine: Literal["mean", "concat"] = "mean"
     qk_reduction: int = param(8, lo=1, doc="q/k channels = C / qk_reduction")
@@ -58,6 +59,7 @@ class TrainConfig:
     hidden: int = param(0, lo=0, doc="fc6/fc7 width (0 = 4096 x width)")
     # where the attention reads the backbone: after its last max-pool (the paper's F) or before it
     attention_at: Literal["pool5", "conv5"] = "pool5"
+    window_hidden: int = param(512, lo=1, doc="outputs of the position-aware fusions' FC on the flattened window")
     pretrained: str = ""           # backbone checkpoint from `stam pretrain` ("" = random init)
     freeze_backbone: bool = False
     epochs: int = param(30, lo=1)
@@ -75,16 +77,16 @@ class TrainConfig:
     progress: bool = True          # tqdm progress bar
 
     def validate(self, where: str) -> None:
-        from .models import MODEL_NAMES
+        from .models import MODELS
 
-        if self.model not in MODEL_NAMES:
-            raise StamError(f"{where}: model {self.model!r} unknown; choose one of {', '.join(MODEL_NAMES)}")
+        if self.model not in MODELS:
+            raise StamError(f"{where}: model {self.model!r} unknown; choose one of {', '.join(MODELS)}")
 
     def model_options(self) -> dict:
         return {"width": self.width, "image_size": self.image_size, "fusion": self.fusion,
                 "modules": self.modules, "combine": self.combine, "qk_reduction": self.qk_reduction,
                 "residual_gain": self.residual_gain, "sa_batchnorm": self.sa_batchnorm, "dropout": self.dropout,
-                "hidden": self.hidden, "attention_at": self.attention_at}
+                "hidden": self.hidden, "attention_at": self.attention_at, "window_hidden": self.window_hidden}
 
 
 @dataclass(frozen=True)
@@ -103,6 +105,12 @@ class PretrainConfig:
     seed: int = param(0, lo=0, doc="the backbone's own seed ([sweep] seeds are the heads')")
 
 
+# The sweep's settings: what a model is trained on and tested on. clean (Table I): windows from the detected
+# contact onset; noisy (Table II): from frame 0, in training and testing; transfer: trained as clean,
+# tested on noisy windows (the models of the clean setting, tested again).
+SETTINGS = ("clean", "noisy", "transfer")
+
+
 @dataclass(frozen=True)
 class SweepConfig:
     """The grid of ``stam experiment``: models x n x settings x seeds."""
@@ -113,14 +121,14 @@ class SweepConfig:
     seeds: int = param(1, lo=1)
 
     def validate(self, where: str) -> None:
-        from .models import MODEL_NAMES
+        from .models import MODELS
 
         for m in self.models:
-            if m not in MODEL_NAMES:
-                raise StamError(f"{where}.models: {m!r} unknown; choose from {', '.join(MODEL_NAMES)}")
+            if m not in MODELS:
+                raise StamError(f"{where}.models: {m!r} unknown; choose from {', '.join(MODELS)}")
         for s in self.settings:
-            if s not in ("clean", "noisy"):
-                raise StamError(f"{where}.settings: {s!r} unknown; choose clean or noisy")
+            if s not in SETTINGS:
+                raise StamError(f"{where}.settings: {s!r} unknown; choose from {', '.join(SETTINGS)}")
         if not self.frames or min(self.frames) < 1:
             raise StamError(f"{where}.frames: {list(self.frames)} must be frame counts of at least 1")
 
@@ -167,8 +175,8 @@ def preset_path(preset: str | Path) -> Path:
     path = Path(s) if s.endswith(".toml") else CONFIG_DIR / f"{s}.toml"
     if not path.is_file():
         if s.endswith(".toml"):
-            raise StamError(f"preset file {path} not found; check the path")
-        raise StamError(f"unknown preset {s!r}; choose one of {', '.join(preset_names())} or a .toml path")
+            raise StamError(f"config file {path} not found; check the path")
+        raise StamError(f"unknown config {s!r}; choose one of {', '.join(preset_names())} or a .toml path")
     return path
 
 
@@ -187,11 +195,45 @@ def load_preset(preset: str | Path) -> Preset:
     return _build(Preset, {"name": name, **raw}, str(path))
 
 
-def resolve_train(base: TrainConfig, overrides: dict | None = None, source: str = "the command line") -> TrainConfig:
+#: ``resolve_train``'s source for the options of ``stam train`` (``--frames``, ``--epochs``, ...).
+COMMAND_LINE = "the command line"
+
+
+def resolve_train(base: TrainConfig, overrides: dict | None = None, source: str = COMMAND_LINE) -> TrainConfig:
+    """``base`` with ``overrides`` (None values skipped), validated like a file. A bad value from the
+    command line is named as its option (``--frames 0``), one from ``--set`` as ``--set frames``. A named
+    variant's fixed options (``stam.models.VARIANTS``) are written into the result, so that its config says
+    what was trained; one set to something else on purpose is an error."""
+    from .models import variant
+
+    values = dataclasses.asdict(base)
+    values.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    cfg = build_options(TrainConfig, values, source)
+    _, options = variant(cfg.model, cfg.model_options())
+    return dataclasses.replace(cfg, **{k: options[k] for k in cfg.model_options()})
+
+
+def resolve_pretrain(base: PretrainConfig, overrides: dict | None = None,
+                     source: str = COMMAND_LINE) -> PretrainConfig:
     """``base`` with ``overrides`` (None values skipped), validated like a file."""
     values = dataclasses.asdict(base)
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
-    return _build(TrainConfig, values, source)
+    return build_options(PretrainConfig, values, source)
+
+
+def build_options(cls, values: dict, source: str = COMMAND_LINE):
+    """``cls`` (TrainConfig, PretrainConfig) built from ``values`` and validated like a file, a bad value
+    named as its option: ``--frames`` from the command line (``source`` COMMAND_LINE), ``--set frames``
+    from ``--set``, ``SOURCE.frames`` from elsewhere."""
+    try:
+        return _build(cls, values, source)
+    except StamError as e:
+        if source not in (COMMAND_LINE, "--set"):
+            raise
+        named = re.sub(rf"^{re.escape(source)}\.(\w+):",
+                       lambda m: (f"--{m[1].replace('_', '-')}" if source == COMMAND_LINE else f"--set {m[1]}") + ":",
+                       str(e))
+        raise StamError(named) from None
 
 
 def _build(cls, data: dict, where: str):

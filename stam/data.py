@@ -106,10 +106,25 @@ def load_manifest(data_dir: str | Path) -> dict:
     return schema.load_manifest(data_dir, complete=True, error=StamError)
 
 
+_said: set[str] = set()
+
+
+def _say_once(line: str) -> None:
+    """``line`` on stderr once per process, when a person watches (stderr a terminal): what a first run does
+    before its first epoch (a dataset of 2,000 sequences takes minutes to decode)."""
+    import sys
+
+    if line not in _said and sys.stderr.isatty():
+        _said.add(line)
+        print(line, file=sys.stderr, flush=True)
+
+
 def _writable(d: Path) -> bool:
+    """Whether files can be written in folder ``d``, or in the folder that would hold it (``d`` is made
+    when the first file is cached: a command that stops before leaves nothing behind)."""
+    target = d if d.exists() else d.parent
     try:
-        d.mkdir(parents=True, exist_ok=True)
-        probe = d / f".probe-{os.getpid()}"
+        probe = target / f".probe-{os.getpid()}"
         probe.write_bytes(b"")
         probe.unlink()
         return True
@@ -120,7 +135,7 @@ def _writable(d: Path) -> bool:
 def default_cache_dir(data_dir: Path) -> Path:
     """``DIR/.stam-cache`` if writable, else ``$XDG_CACHE_HOME/stam/<hash of DIR>``."""
     d = data_dir / ".stam-cache"
-    if _writable(d):
+    if d.parent.is_dir() and _writable(d):
         return d
     base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "stam"
     return base / hashlib.sha256(str(data_dir.resolve()).encode()).hexdigest()[:16]
@@ -256,6 +271,17 @@ class TactileDataset:
         text = f"{self._video_sha.get(seq.id, '')}:{size}:{mtime}"
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
+    def check_video(self, seq: Sequence) -> None:
+        """StamError naming ``seq``'s video when it does not match the manifest's checksum (changed or
+        truncated since it was written: it might still decode, into other frames). Called before the one
+        decode whose frames are cached: a video changed since gets another cache key (:meth:`cache_key`),
+        so it is checked again."""
+        want = self._video_sha.get(seq.id)
+        if want and schema.sha256_of(seq.video) != want:
+            raise StamError(f"video {seq.video} does not match the manifest's checksum (changed or truncated since "
+                            f"it was written); regenerate it (rerun gelsim generate with the same options after "
+                            f"deleting it) or see `gelsim verify {self.dir}`")
+
     def _paths(self, seq: Sequence, size: int) -> tuple[Path, Path]:
         d = self.cache_dir / (f"{size}px" if self.crop == 1.0 else f"{size}px-crop{self.crop:g}")
         key = f"{seq.id}-{self.cache_key(seq)}"
@@ -268,6 +294,8 @@ class TactileDataset:
             return
         from gelsim.video import read_video
 
+        self.check_video(seq)
+        _say_once(f"stam: decoding {self.dir}'s videos into the frame cache {self.cache_dir} (first read of each only) ...")
         frames = read_video(seq.video)
         if frames.shape[0] < 1:
             raise StamError(f"video {seq.video} has no frames; regenerate the dataset")

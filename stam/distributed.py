@@ -152,8 +152,8 @@ class Forward(nn.Module):
         super().__init__()
         self.model, self.features = model, features
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.model.forward_features(x) if self.features else self.model(x)
+    def forward(self, x: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
+        return self.model.forward_features(x, keep) if self.features else self.model(x, keep)
 
 
 def wrap(model: nn.Module, features: bool, device: torch.device) -> nn.Module:

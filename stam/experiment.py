@@ -1,15 +1,18 @@
-"""The sweep behind the paper's Tables I and II: CNN, CNN + SA and STAM, n = 2..7,
-clean (windows from the first contact frame) and noisy (from frame 0), over seeds; with 95%
-intervals on every accuracy and on the differences the paper claims.
+"""The sweep behind the paper's Tables I and II: CNN, CNN + SA and STAM (and the named variants of
+stam.models.VARIANTS), n = 2..7, clean (windows from the first contact frame) and noisy (from frame 0),
+over seeds; with 95% intervals on every accuracy and on the differences the paper claims. A third
+setting, transfer, tests the clean setting's models on noisy windows (trained clean, tested noisy).
 
 Output directory::
 
     OUT/pretrain/backbone.pt        shared starting weights of all three models
     OUT/features-<key>.pt           frozen-backbone features of every frame (cpu preset)
     OUT/cells/<setting>/n<n>/<model>/seed<k>/result.json   accuracy, and each test sequence's id,
-                                    prediction and correctness (+ the run's logs and best.pt)
+                                    prediction and correctness (+ the run's logs and best.pt; a
+                                    transfer cell holds the test of its clean cell's best.pt)
     OUT/onsets.json                 agreement of detected and true contact onsets
     OUT/table1.md, OUT/table2.md    ours (mean [95% CI]) beside the paper's figures, the paper's layout
+    OUT/table2_transfer.md          the transfer setting's table
     OUT/differences.md              the paper's comparisons as paired differences with 95% CIs, the
                                     noisy/clean ratios, what the frames before contact cost with the
                                     contact frames matched, and the resolution at this test size
@@ -45,15 +48,27 @@ from gelsim.atomic import atomic_write_json, atomic_write_text, write_figure
 
 from . import stats
 from .backbone import AlexNetFeatures
-from .config import PretrainConfig, TrainConfig, load_preset, resolve_train
+from .config import SETTINGS as SETTING_NAMES
+from .config import PretrainConfig, TrainConfig, load_preset, resolve_pretrain, resolve_train
 from .data import SPLITS, TactileDataset, backbone_features
 from .errors import StamError
 from .evaluate import evaluate
 from .train import load_backbone, pretrain, save_atomic, train
 
-SETTINGS = {"clean": "contact", "noisy": "zero"}
-MODEL_LABELS = {"cnn": "CNNs", "cnn_sa": "CNNs+Spatial Attention", "stam": "STAM"}
-SHORT_LABELS = {"cnn": "CNN", "cnn_sa": "CNN+SA", "stam": "STAM"}  # in the differences' row names
+# Where each setting's test windows start (stam.data.WindowDataset's start); a setting in TRAINED_AS is
+# not trained itself but tests the models of the setting named there.
+SETTINGS = {"clean": "contact", "noisy": "zero", "transfer": "zero"}
+TRAINED_AS = {"transfer": "clean"}
+MODEL_LABELS = {"cnn": "CNNs", "cnn_sa": "CNNs+Spatial Attention", "stam": "STAM",
+                "cnn_mean_features": "CNN, features averaged over frames",
+                "cnn_max_features": "CNN, features max-pooled over frames",
+                "cnn_flatten": "CNN, one FC on the flattened window",
+                "cnn_joint": "CNN with STAM-paper's head (per-frame head + FC on the window)",
+                "stam_paper": "STAM as its 68.8 M parameters read (full q, k, v; FC on the window)",
+                "oracle": "Oracle: CNN on the frames from the detected onset on"}
+SHORT_LABELS = {"cnn": "CNN", "cnn_sa": "CNN+SA", "stam": "STAM",  # in the differences' row names
+                "cnn_mean_features": "CNN-meanF", "cnn_max_features": "CNN-maxF", "cnn_flatten": "CNN-flat",
+                "cnn_joint": "CNN-joint", "stam_paper": "STAM-paper", "oracle": "Oracle"}
 # Tables I and II of Cao et al. (IROS 2020), accuracy in %, n = 2..7.
 PAPER_TABLES = {
     "clean": {"cnn": [67.23, 72.04, 75.26, 78.06, 79.56, 81.29],
@@ -125,7 +140,7 @@ def _finished_cell(cell_dir: Path, out: Path, test_ids: list[str], data: Tactile
             if log:
                 log(f"{path} has no per-sequence results and no best.pt to recompute them: retraining the cell")
             return None
-        ev = evaluate(best, split="test", data=data, features=feats)
+        ev = evaluate(best, split="test", data=data, features=feats, plot=False)
         if (ev["count"] != cell["test_count"]
                 or round(ev["accuracy"] * ev["count"]) != round(cell["test_acc"] * cell["test_count"])):
             raise StamError(f"{path} recorded test accuracy {cell['test_acc']:.4f} on {cell['test_count']} sequences, "
@@ -140,16 +155,17 @@ def _finished_cell(cell_dir: Path, out: Path, test_ids: list[str], data: Tactile
     return cell
 
 
-def _check_cell_options(cell_dir: Path, base: TrainConfig) -> None:
-    """Refuse to reuse a finished cell trained with other model options than ``base`` (e.g. another
-    ``attention_at``): its config.json (written by stam.train) names them. Options the config predates
-    read as their defaults."""
+def _check_cell_options(cell_dir: Path, base: TrainConfig, model: str) -> None:
+    """Refuse to reuse a finished cell trained with other model options than ``base`` gives ``model``
+    (e.g. another ``attention_at``): its config.json (written by stam.train) names them. Options the
+    config predates read as their defaults."""
+    wanted = resolve_train(base, {"model": model}, "the sweep").model_options()   # a variant's own options
     path = cell_dir / "config.json"
     if not (cell_dir / "result.json").is_file() or not path.is_file():
         return
     saved = json.loads(path.read_text())
     default = TrainConfig()
-    for k, v in base.model_options().items():
+    for k, v in wanted.items():
         had = saved.get(k, getattr(default, k))
         if had != v:
             raise StamError(f"{cell_dir} was trained with {k} = {had!r}, this run asks for {v!r}; use a new --out "
@@ -170,13 +186,33 @@ def train_cell(base: TrainConfig, out: Path, key: tuple, data: TactileDataset, f
     run_cfg = resolve_train(base, {"out": str(cell_dir), "model": m, "frames": n, "start": SETTINGS[setting],
                                    "seed": seed}, "the sweep")
     summary = train(run_cfg, features=feats, data=data, log=None)
-    ev = evaluate(summary["best"], split="test", data=data, features=feats)
+    ev = evaluate(summary["best"], split="test", data=data, features=feats, plot=False)
     cell = {"setting": setting, "frames": n, "model": m, "seed": seed, "test_acc": ev["accuracy"],
             "val_acc": summary["best_val_acc"], "best_epoch": summary["best_epoch"],
             "test_count": ev["count"], "seconds": round(time.perf_counter() - c0, 2), **_per_sequence(ev)}
     atomic_write_json(cell_dir / "result.json", cell)
     # Checkpoints of finished cells are not needed for the tables; keep best.pt only.
     (cell_dir / "last.pt").unlink(missing_ok=True)
+    return cell
+
+
+def transfer_cell(out: Path, key: tuple, data: TactileDataset, feats: dict | None) -> dict:
+    """Test cell ``key`` = (seed, setting, n, model) of a setting of TRAINED_AS (transfer): the best.pt of
+    the cell it names (the clean one), tested on this setting's windows; returns (and writes as
+    result.json) its result with the per-sequence lists."""
+    seed, setting, n, m = key
+    source = _cell_dir(out, (seed, TRAINED_AS[setting], n, m))
+    if not (source / "best.pt").is_file():
+        raise StamError(f"{source} has no best.pt to test on {setting} windows; delete its result.json to retrain it")
+    trained = json.loads((source / "result.json").read_text())
+    cell_dir = _cell_dir(out, key)
+    c0 = time.perf_counter()
+    ev = evaluate(source / "best.pt", split="test", data=data, features=feats, start=SETTINGS[setting], out=cell_dir,
+                  plot=False)
+    cell = {"setting": setting, "trained_as": TRAINED_AS[setting], "frames": n, "model": m, "seed": seed,
+            "test_acc": ev["accuracy"], "val_acc": trained["val_acc"], "best_epoch": trained["best_epoch"],
+            "test_count": ev["count"], "seconds": round(time.perf_counter() - c0, 2), **_per_sequence(ev)}
+    atomic_write_json(cell_dir / "result.json", cell)
     return cell
 
 
@@ -212,9 +248,15 @@ def _cell_results(base: TrainConfig, out: Path, keys: list[tuple], data, feats, 
 def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: int | None = None,
                    models: list[str] | None = None, frames: list[int] | None = None,
                    settings: list[str] | None = None, overrides: dict | None = None, log=print,
-                   note=None, ray: str | None = None) -> dict:
+                   note=None, ray: str | None = None, pretrain_overrides: dict | None = None,
+                   clean_extra: list[int] | None = None) -> dict:
     """Run (or resume) the sweep; returns what results.json holds: cells (without per-sequence lists),
-    tables, differences, ratios, resolution, seed check, paths. ``log``: progress lines; ``note``:
+    tables, differences, ratios, resolution, seed check, paths. ``settings``: of clean, noisy and
+    transfer (which tests the clean models, so it trains them too). ``overrides``: [train] keys;
+    ``pretrain_overrides``: [pretrain] keys (e.g. ``contact_only=False``: the backbone also learns the
+    frames before contact). ``clean_extra``: more n for the clean setting only (e.g. each n − 1, so that
+    the frames before contact can be costed against the clean window with the same contact frames when
+    ``frames`` skips n). ``log``: progress lines; ``note``:
     warnings (one line each; the CLI prints them on stderr). ``ray``: train the cells as Ray tasks
     (``"local"``: on a Ray instance started here; ``"auto"`` or ``HOST:PORT``: on that cluster, whose
     nodes must see ``data_dir`` and ``out``); pretraining and the feature cache stay on this machine."""
@@ -225,19 +267,22 @@ def run_experiment(data_dir: str, out: str | Path, preset: str = "cpu", seeds: i
         connection = connect(ray)
     with connection as cluster:  # joined first: a bad address fails before any pretraining
         return _run_experiment(data_dir, out, preset, seeds, models, frames, settings, overrides, log, note,
-                               cluster)
+                               cluster, pretrain_overrides, clean_extra)
 
 
-def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, overrides, log, note, cluster) -> dict:
+def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, overrides, log, note, cluster,
+                    pretrain_overrides=None, clean_extra=None) -> dict:
     cfg = load_preset(preset)
     sweep = cfg.sweep
-    models = list(models or sweep.models)
+    models = list(dict.fromkeys(models or sweep.models))
     frames = list(frames or sweep.frames)
-    settings = list(settings or sweep.settings)
+    settings = set(settings or sweep.settings)
     seeds = seeds if seeds is not None else sweep.seeds
     for s in settings:
         if s not in SETTINGS:
-            raise StamError(f"unknown setting {s!r}; choose clean or noisy")
+            raise StamError(f"unknown setting {s!r}; choose from {', '.join(SETTINGS)}")
+    settings |= {TRAINED_AS[s] for s in settings if s in TRAINED_AS}   # transfer tests the clean models
+    settings = [s for s in SETTING_NAMES if s in settings]
     if seeds < 1:
         raise StamError(f"--seeds must be at least 1, got {seeds}")
     out = Path(out)
@@ -256,8 +301,10 @@ def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, over
             raise StamError(f"dataset {data_dir} has no {split!r} sequences; generate more sequences per fabric "
                             "(or another gelsim generate --split)")
     shortest = min(s.num_frames for s in data.sequences)
-    if max(frames) > shortest or min(frames) < 1:
-        raise StamError(f"frames {frames} outside 1..{shortest} (the shortest sequence); choose smaller n")
+    clean_extra = sorted(set(clean_extra or []) - set(frames)) if "clean" in settings else []
+    if max(frames + clean_extra) > shortest or min(frames + clean_extra) < 1:
+        raise StamError(f"frames {sorted(set(frames + clean_extra))} outside 1..{shortest} (the shortest sequence); "
+                        "choose smaller n")
     test = sorted(data.split("test"), key=lambda s: s.id)
     test_ids = [s.id for s in test]
     warning = test_size_warning(len(test))
@@ -265,7 +312,7 @@ def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, over
         note(warning)
 
     t0 = time.perf_counter()
-    pre = cfg.pretrain or PretrainConfig()
+    pre = resolve_pretrain(cfg.pretrain or PretrainConfig(), pretrain_overrides, "the experiment's pretraining")
     size = cfg.train.image_size
     onsets = data.onset_agreement(size, cfg.train.onset_threshold)
     atomic_write_json(out / "onsets.json", onsets)
@@ -280,23 +327,36 @@ def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, over
     base = resolve_train(cfg.train, {**(overrides or {}), "data": str(data_dir), "pretrained": pt["path"],
                                      "preset": cfg.name}, "the experiment's overrides")
     todo = [(seed, setting, n, m) for seed in range(seeds) for setting in settings for n in frames for m in models]
+    todo += [(seed, "clean", n, m) for seed in range(seeds) for n in clean_extra for m in models]
     for key in todo:   # before the feature cache: a run that cannot reuse this --out computes nothing
-        _check_cell_options(_cell_dir(out, key), base)
+        _check_cell_options(_cell_dir(out, key), base, key[3])
     feats = features_path = None
     if base.freeze_backbone:
         features_path, feats = _feature_cache(out, Path(pt["path"]), data, base.width, size, log,
                                                 base.attention_at)
 
     finished = {key: _finished_cell(_cell_dir(out, key), out, test_ids, data, feats, log) for key in todo}
-    train_keys = [key for key in todo if finished[key] is None]
-    for cell in _cell_results(base, out, train_keys, data, feats, features_path, cluster):
+    train_keys = [key for key in todo if finished[key] is None and key[1] not in TRAINED_AS]
+    for seed, setting, n, m in train_keys:   # a model trained anew is tested anew in the settings that test it
+        for other, source in TRAINED_AS.items():
+            if source == setting and (seed, other, n, m) in finished:
+                finished[(seed, other, n, m)] = None
+
+    def done(cell):
         finished[(cell["seed"], cell["setting"], cell["frames"], cell["model"])] = cell
         if log:
-            done = sum(c is not None for c in finished.values())
-            log(f"[{done}/{len(todo)}] {cell['setting']} n={cell['frames']} {cell['model']} seed {cell['seed']}: "
+            count = sum(c is not None for c in finished.values())
+            log(f"[{count}/{len(todo)}] {cell['setting']} n={cell['frames']} {cell['model']} seed {cell['seed']}: "
                 f"test {cell['test_acc']:.3f} (val {cell['val_acc']:.3f}, {cell['seconds']:.0f} s)")
+
+    for cell in _cell_results(base, out, train_keys, data, feats, features_path, cluster):
+        done(cell)
+    for key in todo:   # the settings that test another setting's models, once those are trained
+        if finished[key] is None:
+            done(transfer_cell(out, key, data, feats))
     cells = [finished[key] for key in todo]
-    detected = {s.id: data.onset(s, size, "detected", cfg.train.onset_threshold) for s in test}
+    # the onset the clean windows start at (detected, unless the run was told to use the manifest's)
+    detected = {s.id: data.onset(s, size, base.onset, base.onset_threshold) for s in test}
     analysis = analyse(cells, models, frames, settings, test_ids, detected)
     label = str(preset) if base.attention_at == "pool5" else f"{preset}` with `attention_at = {base.attention_at}"
     paths = write_tables(out, analysis, models, frames, settings, seeds, onsets, label)
@@ -316,21 +376,38 @@ def _correct(cells: list[dict], test_ids: list[str]) -> np.ndarray:
     return np.array(rows, float)
 
 
+# Comparisons besides every model against the CNN: attention given the position-aware head (STAM-paper
+# against the same head without attention), and the paper's STAM head against the default one.
+EXTRA_PAIRS = (("stam_paper", "cnn_joint"), ("stam_paper", "stam"))
+
+
+def short_label(model: str) -> str:
+    return SHORT_LABELS.get(model, model)
+
+
+def versus_cnn(models) -> list[str]:
+    """The models compared with the CNN baseline (all others, when the CNN is in the sweep)."""
+    return [m for m in models if m != "cnn"] if "cnn" in models else []
+
+
 def difference_rows(models, settings) -> list[tuple[str, str, list[tuple[int, str, str]]]]:
     """The paper's comparisons as (label, kind, terms): the per-sequence difference at n is the sum
-    of weight x (seed-averaged correctness of model in setting at n) over terms (weight, setting, model)."""
+    of weight x (seed-averaged correctness of model in setting at n) over terms (weight, setting, model).
+    Every model against the CNN in each setting; each setting with frames before contact (noisy,
+    transfer) against clean, per model; and the robustness contrast (model − CNN) x (that − clean)."""
     rows = []
-    attention = [m for m in ("stam", "cnn_sa") if m in models and "cnn" in models]
+    others = versus_cnn(models)
+    pairs = [(m, "cnn") for m in others] + [p for p in EXTRA_PAIRS if p[0] in models and p[1] in models]
     for s in settings:
-        for m in attention:
-            rows.append((f"{SHORT_LABELS[m]} − CNN, {s}", "model", [(1, s, m), (-1, s, "cnn")]))
-    if "clean" in settings and "noisy" in settings:
+        for m, base in pairs:
+            rows.append((f"{short_label(m)} − {short_label(base)}, {s}", "model", [(1, s, m), (-1, s, base)]))
+    for t in [t for t in ("noisy", "transfer") if t in settings and "clean" in settings]:
         for m in models:
-            rows.append((f"noisy − clean, {SHORT_LABELS[m]}", "setting", [(1, "noisy", m), (-1, "clean", m)]))
+            rows.append((f"{t} − clean, {short_label(m)}", "setting", [(1, t, m), (-1, "clean", m)]))
         # The paper's robustness claim: attention gains more with pre-contact frames in the window.
-        for m in attention:
-            rows.append((f"({SHORT_LABELS[m]} − CNN), noisy − clean", "robustness",
-                         [(1, "noisy", m), (-1, "noisy", "cnn"), (-1, "clean", m), (1, "clean", "cnn")]))
+        for m in others:
+            rows.append((f"({short_label(m)} − CNN), {t} − clean", "robustness",
+                         [(1, t, m), (-1, t, "cnn"), (-1, "clean", m), (1, "clean", "cnn")]))
     return rows
 
 
@@ -374,7 +451,10 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
         columns.append(sum(w * seed_mean[key] for w, key in weighted))
         spreads.append(_shift_spread(weighted, correct))
 
-    cell_keys = [(s, n, m) for s in settings for m in models for n in frames if (s, n, m) in seed_mean]
+    # the clean setting may hold extra n (run for the matched cost of the frames before contact: n - 1)
+    clean_frames = sorted({n for s, n, _ in seed_mean if s == "clean"} | set(frames))
+    cell_keys = [(s, n, m) for s in settings for m in models for n in (clean_frames if s == "clean" else frames)
+                 if (s, n, m) in seed_mean]
     for key in cell_keys:
         column(key, [(1, key)])
     rows = difference_rows(models, settings)
@@ -406,7 +486,7 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
                 continue
             paper = _paper_mean(list(papers.values())) if n == "mean" else papers[n]
             d = _interval(*ci[(label, n)])
-            differences.append({"difference": label, "kind": kind, "frames": n, **d,
+            differences.append({"difference": label, "kind": kind, "frames": n, "terms": [list(t) for t in terms], **d,
                                 "resolved": d["ci95"][0] > 0 or d["ci95"][1] < 0, "paper": paper})
 
     ratios = {}
@@ -425,9 +505,11 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
                     ratios[m] = {"ratio": r[0], "ci95": [r[1], r[2]], "resolved": r[1] > 1 or r[2] < 1,
                                  "paper": None if None in paper.values() else paper["noisy"] / paper["clean"]}
 
-    precontact = (_precontact(seed_mean, correct, models, frames, test_ids, onsets, seed_check["shift_variance"])
-                  if onsets and "clean" in settings and "noisy" in settings else None)
-    return {"tables": tables, "differences": differences, "ratios": ratios, "precontact": precontact,
+    precontact = {t: (_precontact(seed_mean, correct, models, frames, test_ids, onsets, seed_check["shift_variance"], t,
+                                  clean_frames)
+                      if onsets and "clean" in settings and t in settings else None) for t in ("noisy", "transfer")}
+    return {"tables": tables, "differences": differences, "ratios": ratios, "precontact": precontact["noisy"],
+            "precontact_transfer": precontact["transfer"],
             "resolution": resolution(differences, tables, len(test_ids), max((len(c) for c in grouped.values()), default=0)),
             "seed_check": seed_check,
             "bootstrap": {"method": "percentile bootstrap over the test sequences; each sequence's correctness "
@@ -446,7 +528,7 @@ def _shift_spread(weighted: list[tuple[float, tuple]], correct: dict) -> float:
 
 
 def _precontact(seed_mean: dict, correct: dict, models, frames, test_ids: list[str], onsets: dict,
-                shift_variance: float) -> dict | None:
+                shift_variance: float, tested: str = "noisy", clean_frames=None) -> dict | None:
     """The cost of the frames before contact, with the contact frames held fixed.
 
     A noisy window of n frames starts at frame 0; with the detected onset o (1 <= o < n) it holds the
@@ -454,36 +536,39 @@ def _precontact(seed_mean: dict, correct: dict, models, frames, test_ids: list[s
     frames. So noisy(n) - clean(k) on such a sequence is what adding the frames before contact does,
     apart from the contact frames it brings fewer of (the rest of noisy - clean). Per model: the mean
     of that per-sequence difference (correctness averaged over the seeds) over every (sequence, n)
-    with k among ``frames``, as a ratio of means over the test sequences (bootstrap, then widened by
-    the seeds' shift over the cells involved, as the other intervals). Also attention - CNN of it: the
-    paper's claim is that STAM gains here. None when no sequence qualifies."""
+    with k among ``clean_frames`` (the clean setting's n: ``frames``, and any extra ones run for this, such
+    as n - 1), as a ratio of means over the test sequences (bootstrap, then widened by
+    the seeds' shift over the cells involved, as the other intervals). Also model - CNN of it for every
+    other model: the paper's claim is that STAM gains here. ``tested``: the setting whose windows start
+    at frame 0 (noisy, or transfer: the clean models on those windows). None when no sequence qualifies."""
+    clean_frames = sorted(set(clean_frames or frames))
     pairs = [(i, n, n - onsets[t]) for i, t in enumerate(test_ids) for n in frames
-             if onsets.get(t) is not None and 1 <= onsets[t] < n and n - onsets[t] in frames]
+             if onsets.get(t) is not None and 1 <= onsets[t] < n and n - onsets[t] in clean_frames]
     if not pairs:
         return None
     count = np.zeros(len(test_ids))
     np.add.at(count, [i for i, _, _ in pairs], 1.0)
     # seed shift: each side is a mixture of cells weighted by their share of the pairs
-    share = {("noisy", n): 0.0 for n in frames} | {("clean", k): 0.0 for k in frames}
+    share = {(tested, n): 0.0 for n in frames} | {("clean", k): 0.0 for k in clean_frames}
     for _, n, k in pairs:
-        share[("noisy", n)] += 1 / len(pairs)
+        share[(tested, n)] += 1 / len(pairs)
         share[("clean", k)] += 1 / len(pairs)
     sums, out, diffs = {}, {}, {}
     for m in models:
-        if not all(("noisy", n, m) in seed_mean and ("clean", k, m) in seed_mean for _, n, k in pairs):
+        if not all((tested, n, m) in seed_mean and ("clean", k, m) in seed_mean for _, n, k in pairs):
             continue
         v = np.zeros(len(test_ids))
         for i, n, k in pairs:
-            v[i] += seed_mean[("noisy", n, m)][i] - seed_mean[("clean", k, m)][i]
+            v[i] += seed_mean[(tested, n, m)][i] - seed_mean[("clean", k, m)][i]
         sums[m] = v
         cells = [(w, (s, f, m)) for (s, f), w in share.items() if w]
         out[m] = _precontact_ci(v, count, _shift_spread(cells, correct) * shift_variance)
-    for m in ("stam", "cnn_sa"):
+    for m in versus_cnn(models):
         if m in sums and "cnn" in sums:
             cells = [(w, (s, f, model)) for (s, f), w in share.items() if w for model in (m, "cnn")]
             diffs[m] = _precontact_ci(sums[m] - sums["cnn"], count, _shift_spread(cells, correct) * shift_variance)
     onset_values = sorted({n - k for _, n, k in pairs})
-    return {"windows": len(pairs), "sequences": int((count > 0).sum()), "onsets": onset_values,
+    return {"tested": tested, "windows": len(pairs), "sequences": int((count > 0).sum()), "onsets": onset_values,
             "models": out, "minus_cnn": diffs}
 
 
@@ -527,7 +612,7 @@ def resolution(differences: list[dict], tables: dict, test_sequences: int, seeds
 
 
 def _paper(setting: str, model: str, n: int) -> float | None:
-    if n in PAPER_FRAMES and model in PAPER_TABLES[setting]:
+    if n in PAPER_FRAMES and model in PAPER_TABLES.get(setting, {}):
         return PAPER_TABLES[setting][model][PAPER_FRAMES.index(n)]
     return None
 
@@ -539,7 +624,8 @@ def _ci_text(d: dict, signed: bool = False) -> str:
 
 def markdown_table(tables: dict, setting: str, models, frames, seeds: int, test_sequences: int) -> str:
     title = {"clean": "Table I (clean: windows start at the detected first contact frame)",
-             "noisy": "Table II (noisy: windows start at frame 0, pre-contact frames included)"}[setting]
+             "noisy": "Table II (noisy: windows start at frame 0, pre-contact frames included)",
+             "transfer": "Table II, trained clean (the clean setting's models tested on windows from frame 0)"}[setting]
     over = f"mean over {seeds} seeds" if seeds > 1 else "one seed"
     lines = [f"### {title}", "",
              f"Test accuracy in %: ours, {over} [95% CI: bootstrap over the {test_sequences:,} test sequences, "
@@ -586,23 +672,13 @@ def markdown_differences(analysis: dict, frames) -> str:
         parts = []
         for m, r in analysis["ratios"].items():
             text = f"{r['ratio']:.2f} [{r['ci95'][0]:.2f}, {r['ci95'][1]:.2f}]"
-            parts.append(f"{SHORT_LABELS.get(m, m)} " + (f"**{text}**" if r["resolved"] else text)
+            parts.append(f"{short_label(m)} " + (f"**{text}**" if r["resolved"] else text)
                          + (f" ({r['paper']:.2f})" if r["paper"] is not None else ""))
         lines += ["", "Noisy/clean accuracy ratio (accuracies averaged over n; bold: the CI excludes 1): "
                   + ", ".join(parts) + "."]
-    pc = analysis.get("precontact")
-    if pc:
-        def fmt(d):
-            text = _ci_text(d, signed=True)
-            return f"**{text}**" if d["resolved"] else text
-        parts = [f"{SHORT_LABELS.get(m, m)} {fmt(d)}" for m, d in pc["models"].items()]
-        gains = [f"{SHORT_LABELS.get(m, m)} − CNN {fmt(d)}" for m, d in pc["minus_cnn"].items()]
-        lines += ["", "Frames before contact, contact frames matched: a noisy window of n frames holds the o frames "
-                  "before the detected onset and then the clean window of k = n − o frames, the same frames. "
-                  f"Noisy(n) − clean(k) on the same sequences, points, over {pc['windows']:,} windows of "
-                  f"{pc['sequences']:,} sequences (o = {', '.join(map(str, pc['onsets']))}; k among the table's n): "
-                  + ", ".join(parts) + (". Attention against the baseline on it: " + ", ".join(gains) if gains else "")
-                  + ". The rest of noisy − clean is the contact frames such a window lacks."]
+    for pc in (analysis.get("precontact"), analysis.get("precontact_transfer")):
+        if pc:
+            lines += ["", precontact_text(pc)]
     lines += ["", analysis["resolution"]["statement"]]
     sc = analysis["seed_check"]
     if sc["ratio"] is not None:
@@ -614,12 +690,32 @@ def markdown_differences(analysis: dict, frames) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _bold_ci(d: dict) -> str:
+    text = _ci_text(d, signed=True)
+    return f"**{text}**" if d["resolved"] else text
+
+
+def precontact_text(pc: dict) -> str:
+    """One paragraph: what the frames before contact cost with the contact frames matched (:func:`_precontact`)."""
+    parts = [f"{short_label(m)} {_bold_ci(d)}" for m, d in pc["models"].items()]
+    gains = [f"{short_label(m)} − CNN {_bold_ci(d)}" for m, d in pc["minus_cnn"].items()]
+    tested = pc.get("tested", "noisy")
+    which = "noisy windows" if tested == "noisy" else "transfer: the clean models on windows from frame 0"
+    return (f"Frames before contact, contact frames matched ({which}): a window of n frames from frame 0 holds "
+            "the o frames before the detected onset and then the clean window of k = n − o frames, the same frames. "
+            f"{tested.capitalize()}(n) − clean(k) on the same sequences, points, over {pc['windows']:,} windows of "
+            f"{pc['sequences']:,} sequences (o = {', '.join(map(str, pc['onsets']))}; k among the table's n): "
+            + ", ".join(parts) + (". Against the baseline on it: " + ", ".join(gains) if gains else "")
+            + f". The rest of {tested} − clean is the contact frames such a window lacks.")
+
+
 def write_tables(out: Path, analysis: dict, models, frames, settings, seeds: int, onsets: dict, preset: str) -> dict:
     paths = {}
     tables, n_tests = analysis["tables"], analysis["bootstrap"]["test_sequences"]
-    for s, name in (("clean", "table1.md"), ("noisy", "table2.md")):
+    for s, name in (("clean", "table1.md"), ("noisy", "table2.md"), ("transfer", "table2_transfer.md")):
         if s in settings:
-            text = markdown_table(tables, s, models, frames, seeds, n_tests)
+            shown = sorted({n for cells in tables.get(s, {}).values() for n in cells} | set(frames))
+            text = markdown_table(tables, s, models, shown, seeds, n_tests)
             text += (f"\nPreset `{preset}`. Onset detection agreed exactly with the simulator's contact onset on "
                      f"{onsets['exact']}/{onsets['sequences']} sequences ({onsets['within_1']} within one frame).\n")
             atomic_write_text(out / name, text)
@@ -637,7 +733,9 @@ def plot_tables(path: Path, tables: dict, models, frames, settings) -> Path:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(settings), figsize=(5.5 * len(settings), 4), squeeze=False)
-    colours = {"cnn": "tab:blue", "cnn_sa": "tab:orange", "stam": "tab:green"}
+    colours = {"cnn": "tab:blue", "cnn_sa": "tab:orange", "stam": "tab:green", "cnn_mean_features": "tab:purple",
+               "cnn_max_features": "tab:brown", "cnn_flatten": "tab:pink", "cnn_joint": "tab:gray",
+               "stam_paper": "tab:olive", "oracle": "black"}
     for ax, s in zip(axes[0], settings):
         for k, m in enumerate(models):
             cells = tables.get(s, {}).get(m, {})
@@ -646,14 +744,16 @@ def plot_tables(path: Path, tables: dict, models, frames, settings) -> Path:
                 mean = np.array([cells[n]["mean"] for n in ns])
                 lo = np.array([cells[n]["ci95"][0] for n in ns])
                 hi = np.array([cells[n]["ci95"][1] for n in ns])
-                # Nudged sideways so that the three models' bars do not hide each other.
+                # Nudged sideways so that the models' bars do not hide each other.
                 x = np.array(ns) + 0.08 * (k - (len(models) - 1) / 2)
                 ax.errorbar(x, mean, yerr=[mean - lo, hi - mean], marker="o", capsize=3, color=colours.get(m),
-                            label=f"{MODEL_LABELS[m]} (ours, 95% CI)")
+                            label=f"{MODEL_LABELS.get(m, m)} (ours, 95% CI)")
             pn = [n for n in frames if _paper(s, m, n) is not None]
-            ax.plot(pn, [_paper(s, m, n) for n in pn], ls="--", marker="x", color=colours.get(m), alpha=0.6,
-                    label=f"{MODEL_LABELS[m]} (paper)")
-        ax.set_title({"clean": "clean (Table I)", "noisy": "noisy (Table II)"}[s])
+            if pn:
+                ax.plot(pn, [_paper(s, m, n) for n in pn], ls="--", marker="x", color=colours.get(m), alpha=0.6,
+                        label=f"{MODEL_LABELS.get(m, m)} (paper)")
+        ax.set_title({"clean": "clean (Table I)", "noisy": "noisy (Table II)",
+                      "transfer": "trained clean, tested noisy"}[s])
         ax.set_xticks(frames)
         ax.set_xlabel("n (frames per window)")
         ax.set_ylabel("test accuracy (%)")

@@ -14,8 +14,14 @@ Choices the paper leaves open (each an option of :func:`build`, argued in docs/s
 
 * ``fusion`` of the n frames: ``mean_logits`` (default; average of per-frame class
   scores, parameter-free, so the baseline has exactly AlexNet's 57.4 M parameters as
-  the paper reports), ``mean_features`` (average the feature maps before fc6) or
-  ``max_features``.
+  the paper reports), ``mean_features`` (average the feature maps before fc6),
+  ``max_features``, or, position-aware (:class:`WindowHead`: one fully connected layer on the
+  flattened ``n x C x h x w`` window, so each frame's position has weights of its own):
+  ``flatten`` (that layer, ReLU, then a class layer: no per-frame head) or ``joint`` (the
+  per-frame head's fc7 outputs averaged over the frames and that layer's output, concatenated,
+  into fc8: the reading of the paper's 68.8 M parameters, docs/stam.md). ``onset`` is the
+  onset-aware oracle's: ``mean_logits`` over the frames from the detected contact onset on only
+  (a ``keep`` mask per window, :mod:`stam.oracle`).
 * ``combine`` of the parallel temporal modules: ``mean`` (default, parameter-free; the
   paper averages the modules' attention maps for Fig. 7, so averaging their outputs is
   the closest reading) or ``concat`` (channel concatenation then a 1x1x1 projection back
@@ -30,8 +36,16 @@ Choices the paper leaves open (each an option of :func:`build`, argued in docs/s
   the attention reads conv5's map, before that pool, and the pool follows it (so the CNN is the
   same function at both). At 128 px that is 7 x 7 positions per frame instead of 3 x 3, about the
   paper's 6 x 6 at 224 px; a diagnostic of the cpu preset's small map (docs/stam.md).
+* ``window_hidden``: the output width of the position-aware fusions' layer on the flattened
+  window (512, the paper's count's reading).
+
+Named variants (:data:`VARIANTS`) fix some of these options under a name of their own, so that a
+sweep can hold several settings of one architecture side by side: e.g. ``stam_paper`` (full-width
+q, k, v and the ``joint`` head), ``cnn_joint`` (the same head without attention), ``oracle``.
 """
 from __future__ import annotations
+
+import inspect
 
 import torch
 import torch.nn.functional as F
@@ -42,12 +56,28 @@ from gelsim.errors import check_choice
 from .backbone import CUTS, AlexNetFeatures, AlexNetHead, feature_size
 from .errors import StamError
 
-MODEL_NAMES = ("cnn", "cnn_sa", "stam")
-FUSIONS = ("mean_logits", "mean_features", "max_features")
+MODEL_NAMES = ("cnn", "cnn_sa", "stam")   # the architectures
+FUSIONS = ("mean_logits", "mean_features", "max_features", "flatten", "joint", "onset")
+# Fusions whose head has weights per frame position (it can learn to discount the first frame).
+POSITION_AWARE = ("flatten", "joint")
+# Named variants: an architecture with some options fixed (what `stam experiment --models` and
+# `stam train --model` accept besides the architectures). The study of issue 48 needs them side by
+# side in one sweep: the baseline's fusions, the position-aware head with and without attention, the
+# paper's STAM as its parameter count reads (docs/stam.md), and the onset-aware oracle.
+VARIANTS = {
+    "cnn_mean_features": ("cnn", {"fusion": "mean_features"}),
+    "cnn_max_features": ("cnn", {"fusion": "max_features"}),
+    "cnn_flatten": ("cnn", {"fusion": "flatten"}),
+    "cnn_joint": ("cnn", {"fusion": "joint"}),
+    "stam_paper": ("stam", {"qk_reduction": 1, "fusion": "joint"}),
+    "oracle": ("cnn", {"fusion": "onset"}),
+}
+MODELS = MODEL_NAMES + tuple(VARIANTS)
 COMBINES = ("mean", "concat")
 RESIDUAL_GAINS = ("learned", "fixed")
-# Paper's reported parameter counts (Sec. IV-B), at full AlexNet, 224 px, 100 classes, n = 2.
-PAPER_PARAMS = {"cnn": 57.4e6, "stam": 68.8e6}
+# Paper's reported parameter counts (Sec. IV-B), at full AlexNet, 224 px, 100 classes, n = 2
+# (stam_paper is the reading of the STAM count, docs/stam.md).
+PAPER_PARAMS = {"cnn": 57.4e6, "stam": 68.8e6, "stam_paper": 68.8e6}
 
 
 class SpatialAttention(nn.Module):
@@ -115,6 +145,40 @@ class TemporalAttention(nn.Module):
         return (out, a) if return_map else out
 
 
+class WindowHead(nn.Module):
+    """One fully connected layer on a whole window, flattened: ``B x n x C x h x w`` ->
+    ``B x hidden`` (dropout, linear, ReLU, dropout). Frame t's features meet weights of their own,
+    so the layer sees each frame's position in the window (unlike any average over frames). At the
+    paper's size (n = 2, 256 x 6 x 6 per frame) it is 18,432 -> 512: 9.44 M parameters."""
+
+    def __init__(self, in_features: int, hidden: int, dropout: float = 0.5):
+        super().__init__()
+        self.layer = nn.Sequential(nn.Dropout(dropout), nn.Linear(in_features, hidden), nn.ReLU(inplace=True),
+                                   nn.Dropout(dropout))
+
+    def forward(self, f: torch.Tensor) -> torch.Tensor:
+        return self.layer(f.flatten(1))
+
+
+def variant(name: str, options: dict | None = None) -> tuple[str, dict]:
+    """(architecture, options) of a model name: an architecture keeps ``options``; a named variant
+    (:data:`VARIANTS`) sets its fixed options. An option given with another value than the variant's
+    and than :func:`build`'s default is an error (the name would not say what was trained)."""
+    options = dict(options or {})
+    if name in MODEL_NAMES:
+        return name, options
+    if name not in VARIANTS:
+        raise StamError(f"model {name!r} unknown; choose one of {', '.join(MODELS)}")
+    arch, fixed = VARIANTS[name]
+    for k, v in fixed.items():
+        given = options.get(k, v)
+        if given != v and given != BUILD_DEFAULTS[k]:
+            raise StamError(f"model {name} is {arch} with {k} = {v!r}, but {k} = {given!r} was asked for; "
+                            f"use model {arch} with that {k}, or leave {k} at its default")
+        options[k] = v
+    return arch, options
+
+
 class SequenceModel(nn.Module):
     """Shared frame: per-frame AlexNet features -> optional attention -> head -> fusion."""
 
@@ -122,7 +186,7 @@ class SequenceModel(nn.Module):
                  image_size: int = 224, fusion: str = "mean_logits", modules: int = 10,
                  combine: str = "mean", qk_reduction: int = 8, residual_gain: str = "learned",
                  sa_batchnorm: bool = False, dropout: float = 0.5, pool: int | None = None,
-                 hidden: int = 0, attention_at: str = "pool5"):
+                 hidden: int = 0, attention_at: str = "pool5", window_hidden: int = 512):
         super().__init__()
         check_choice("model", name, MODEL_NAMES, StamError)
         check_choice("attention_at", attention_at, CUTS, StamError)
@@ -132,10 +196,13 @@ class SequenceModel(nn.Module):
             raise StamError(f"n_frames must be at least 1, got {n_frames}; use 2..7 as the paper")
         if modules < 1 or qk_reduction < 1:
             raise StamError("modules and qk_reduction must be at least 1; use the defaults 10 and 8")
+        if window_hidden < 1:
+            raise StamError(f"window_hidden must be at least 1, got {window_hidden}; use 512, the paper's reading")
         fs = feature_size(image_size)
         if fs < 1:
             raise StamError(f"image_size {image_size} px is too small for AlexNet; use at least 64")
         self.name, self.n_frames, self.num_classes, self.fusion = name, n_frames, num_classes, fusion
+        self.variant = name
         self.combine = combine
         self.backbone = AlexNetFeatures(width, cut=attention_at)
         # conv5's map is pooled as the backbone's last layer would have, after the attention
@@ -149,7 +216,21 @@ class SequenceModel(nn.Module):
         else:
             self.temporal, self.project = None, None
         # Pool to the backbone's own map size unless told: 6 x 6 at 224 px (torchvision's value).
-        self.head = AlexNetHead(c, num_classes, width, pool or fs, dropout, hidden or None)
+        # ``flatten`` has no per-frame head; the other fusions do.
+        self.head = (None if fusion == "flatten" else
+                     AlexNetHead(c, num_classes, width, pool or fs, dropout, hidden or None))
+        self.window, self.window_out = None, None
+        if fusion in POSITION_AWARE:
+            self.window = WindowHead(n_frames * c * fs * fs, window_hidden, dropout)
+            # joint: fc8 reads [mean over frames of fc7 ; the window's features]. fc8 is linear, so that is
+            # fc8(mean fc7) + W x window: the mean of the per-frame logits plus a layer without bias (fc8's
+            # bias serves both). flatten: a class layer of its own.
+            self.window_out = nn.Linear(window_hidden, num_classes, bias=fusion == "flatten")
+
+    @property
+    def needs_onset(self) -> bool:
+        """Whether forward needs each window's ``keep`` mask (the oracle's fusion, :mod:`stam.oracle`)."""
+        return self.fusion == "onset"
 
     def frame_features(self, x: torch.Tensor) -> torch.Tensor:
         """``B x n x 3 x S x S`` images -> ``B x n x C x h x w`` backbone features."""
@@ -171,36 +252,58 @@ class SequenceModel(nn.Module):
                 f = self.project(cat).permute(0, 2, 1, 3, 4)
         return f
 
-    def classify(self, f: torch.Tensor) -> torch.Tensor:
-        """Head and fusion: attended ``B x n x C x h x w`` -> ``B x num_classes`` logits."""
+    def classify(self, f: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
+        """Head and fusion: attended ``B x n x C x h x w`` -> ``B x num_classes`` logits. ``keep``
+        (``bool B x n``; the ``onset`` fusion only, where it is required): the frames whose logits
+        are averaged."""
         b, n = f.shape[:2]
         if self.pool5 is not None:
             f = self.pool5(f.flatten(0, 1))
             f = f.view(b, n, *f.shape[1:])
-        if self.fusion == "mean_logits":
-            return self.head(f.flatten(0, 1)).view(b, n, -1).mean(1)
-        pooled = f.mean(1) if self.fusion == "mean_features" else f.amax(1)
-        return self.head(pooled)
+        if self.fusion == "flatten":
+            return self.window_out(self.window(f))
+        if self.fusion in ("mean_features", "max_features"):
+            return self.head(f.mean(1) if self.fusion == "mean_features" else f.amax(1))
+        per_frame = self.head(f.flatten(0, 1)).view(b, n, -1)
+        if self.fusion == "joint":
+            return per_frame.mean(1) + self.window_out(self.window(f))
+        if self.fusion == "onset":
+            if keep is None:
+                raise StamError("the onset fusion (the oracle) needs each window's keep mask; "
+                                "give it the windows of stam.oracle.OnsetWindows")
+            w = keep.to(per_frame.dtype).unsqueeze(-1)
+            return (per_frame * w).sum(1) / w.sum(1).clamp_min(1.0)
+        return per_frame.mean(1)
 
-    def forward_features(self, f: torch.Tensor) -> torch.Tensor:
+    def forward_features(self, f: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
         """Logits from precomputed backbone features (frozen-backbone training)."""
-        return self.classify(self.attend(f))
+        return self.classify(self.attend(f), keep)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
         if x.ndim != 5 or x.shape[1] != self.n_frames:
             raise StamError(f"{self.name} expects B x {self.n_frames} x 3 x S x S input, got {tuple(x.shape)}")
-        return self.forward_features(self.frame_features(x))
+        return self.forward_features(self.frame_features(x), keep)
+
+
+# build()'s option defaults, against which variant() tells an option given on purpose from one left as is.
+BUILD_DEFAULTS = {k: p.default for k, p in inspect.signature(SequenceModel.__init__).parameters.items()
+                  if p.default is not inspect.Parameter.empty}
 
 
 def build(name: str, n_frames: int, num_classes: int, **options) -> SequenceModel:
-    """Build ``cnn``, ``cnn_sa`` or ``stam`` for windows of ``n_frames`` frames.
+    """Build a model, an architecture (``cnn``, ``cnn_sa``, ``stam``) or a named variant of
+    :data:`VARIANTS`, for windows of ``n_frames`` frames.
 
     Options (see the module docstring): width (channel multiplier, 1.0 = AlexNet),
     image_size (px, square input; 224), fusion, modules (10), combine, qk_reduction (8),
     residual_gain, sa_batchnorm, dropout (0.5), pool (fc6 input map side; default the
-    last max-pool's map side), hidden (fc6/fc7 width; 0 = 4096 x width), attention_at (pool5 | conv5).
+    last max-pool's map side), hidden (fc6/fc7 width; 0 = 4096 x width), attention_at (pool5 | conv5),
+    window_hidden (512: the position-aware fusions' layer on the flattened window).
     """
-    return SequenceModel(name, n_frames, num_classes, **options)
+    arch, options = variant(name, options)
+    model = SequenceModel(arch, n_frames, num_classes, **options)
+    model.variant = name
+    return model
 
 
 def count_parameters(model: nn.Module) -> int:
@@ -238,6 +341,8 @@ def paper_readings() -> list[dict]:
          + mods * qkv_full + mods * n * c * hw * k + k),
         ("AlexNet + 10 full q,k,v modules + one FC flatten(n*h*w*C = 18432) -> 512",
          alexnet + mods * qkv_full + n * c * hw * 512 + 512),
+        ("stam_paper: that, its 512 outputs joining the frames' mean fc7 into fc8 (4096 + 512 -> 100)",
+         parameter_count("stam_paper", n, k)),
         ("AlexNet + 10 C/8 modules + FC on the pooled concatenation (2560 -> 4096)",
          alexnet + mods * qkv_red8 + mods * c * hidden + hidden),
     ]

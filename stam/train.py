@@ -37,6 +37,7 @@ from .config import TrainConfig, default_preset, describe_run, load_preset, pars
 from .data import DEFAULT_ONSET_THRESHOLD, FrameDataset, TactileDataset, WindowDataset, backbone_features
 from .distributed import make_loader
 from .errors import StamError
+from .oracle import windows_for
 
 
 def resolve_device(name: str) -> torch.device:
@@ -80,6 +81,17 @@ def load_backbone(model_backbone: torch.nn.Module, path: str) -> None:
                           "pretrain with the same width") from None
 
 
+def batch_to(x, device):
+    """A batch's input on ``device``: a tensor, or a list of them (a window and the oracle's keep mask,
+    :mod:`stam.oracle`)."""
+    return [t.to(device) for t in x] if isinstance(x, (list, tuple)) else x.to(device)
+
+
+def apply(forward, x):
+    """``forward`` on a batch's input as :func:`batch_to` gives it (a list: its items are the arguments)."""
+    return forward(*x) if isinstance(x, list) else forward(x)
+
+
 def run_epoch(model, loader, device, forward, optimizer=None, progress=False, desc="", shares=None,
               dist=None) -> tuple[float, float]:
     """One pass; trains when ``optimizer`` is given. Returns (mean loss, accuracy in [0, 1]).
@@ -98,8 +110,8 @@ def run_epoch(model, loader, device, forward, optimizer=None, progress=False, de
         it = tqdm(loader, desc=desc, leave=False, file=sys.stderr, dynamic_ncols=True)
     with torch.set_grad_enabled(train):
         for k, (x, y) in enumerate(it):
-            x, y = x.to(device), y.to(device)
-            logits = forward(x)
+            x, y = batch_to(x, device), y.to(device)
+            logits = apply(forward, x)
             if shares is None:
                 loss = F.cross_entropy(logits, y)
                 n, loss_sum = y.shape[0], loss.item() * y.shape[0]
@@ -216,10 +228,9 @@ def train(cfg: TrainConfig, *, resume: bool = False, features: dict | None = Non
         seqs = data.split("train") + data.split("val")
         features = backbone_features(model.backbone, data, seqs, cfg.image_size)
     feats = features if cfg.freeze_backbone else None
-    train_ds = WindowDataset(data, "train", cfg.frames, cfg.start, cfg.image_size, cfg.onset,
-                             cfg.onset_threshold, feats)
-    val_ds = WindowDataset(data, "val", cfg.frames, cfg.start, cfg.image_size, cfg.onset,
-                           cfg.onset_threshold, feats)
+    train_ds, val_ds = (windows_for(model, WindowDataset(data, split, cfg.frames, cfg.start, cfg.image_size,
+                                                         cfg.onset, cfg.onset_threshold, feats),
+                                    cfg.onset, cfg.onset_threshold) for split in ("train", "val"))
     forward = model.forward_features if cfg.freeze_backbone else model
     train_forward = forward if dist is None else distributed.wrap(model, cfg.freeze_backbone, device)
 
@@ -437,7 +448,7 @@ def run_train(data: str, out: str, *, preset: str | None = None, overrides: dict
             log = note = None
     if chosen is not None and note:
         why = "no CUDA device" if chosen != "paper" else "a CUDA device is available"
-        note(f"stam train: no --preset given and {why}: using the {chosen} preset: {describe_run(cfg, plan)}; "
+        note(f"stam train: no --config given and {why}: using the {chosen} config: {describe_run(cfg, plan)}; "
              "see `stam train --help`")
     dataset = TactileDataset(cfg.data, cfg.cache_dir or None, crop=cfg.crop)
     shortest = min(s.num_frames for s in dataset.sequences)

@@ -97,7 +97,8 @@ def test_installed_wheel_generates_the_quick_dataset(installed):
     work = installed["work"]
     _run([installed["bin"] / "gelsim", "generate", "--preset", "quick", "--workers", "2", "--out", "demo"], work)
     manifest = json.loads((work / "demo" / "manifest.json").read_text())
-    assert manifest["complete"] is True and len(manifest["sequences"]) == 30
+    assert manifest["complete"] is True and len(manifest["sequences"]) == 40
+    assert manifest["splits"] == {"train": 20, "val": 10, "test": 10}   # a test split for `stam evaluate`
     assert (work / "demo" / "previews").is_dir()
     _run([installed["bin"] / "gelsim", "verify", "demo"], work)
 

@@ -28,6 +28,7 @@ COMMAND_MODULES = (
     "realism_cmd",
     "render_cmd",
     "sensors_cmd",
+    "show_cmd",
     "texture_cmd",
 )
 
@@ -51,6 +52,18 @@ class ArgumentParser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: error: {message}; see `{self.prog} --help`", file=sys.stderr)
         sys.exit(2)
+
+
+def seed_arg(text: str) -> int:
+    """argparse ``type`` of every ``--seed``: a whole number >= 0 (numpy's generators refuse a negative seed,
+    which was a traceback)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a seed; give a whole number >= 0")
+    return value
 
 
 def print_json(obj) -> None:
@@ -82,6 +95,30 @@ def warn_if_bottomed(prog: str, bottomed: bool, carried_n: float, asked_n: float
     asked = "" if asked_n is None else f" of the {asked_n:g} N asked"
     warn(prog, f"the gel bottomed out (pressed to its full travel) and carries {carried_n:.3g} N{asked}; "
                "ask for less force or depth to stay within the gel's range")
+
+
+def say_first_run(prog: str) -> None:
+    """For a command that renders frames: the first compile of the numba kernels on this machine (10-30 s)
+    is said on stderr in one line, ``PROG: first run on this machine: compiling ...`` (gelsim.firstrun), when
+    stderr is a terminal: a person waits there; a log or a test reading stderr gets only the command's own
+    lines."""
+    if not sys.stderr.isatty():
+        return
+    from ..firstrun import announce_compiles
+
+    announce_compiles(lambda line: print(f"{prog}: {line}", file=sys.stderr, flush=True))
+
+
+def needs_subcommand(parser: argparse.ArgumentParser, subparsers) -> None:
+    """``parser``, a command of subcommands (``subparsers``, its ``add_subparsers()``, all added), run
+    without one: one line naming them, status 2 (argparse alone would run nothing)."""
+    names = list(subparsers.choices)
+
+    def handler(args) -> int:
+        raise GelsimError(f"`{parser.prog}` needs a subcommand, one of {', '.join(names)}; e.g. "
+                          f"`{parser.prog} {names[0]}` (see `{parser.prog} --help`)")
+
+    parser.set_defaults(handler=handler)
 
 
 def build_parser() -> argparse.ArgumentParser:

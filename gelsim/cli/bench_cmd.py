@@ -8,7 +8,7 @@ from ..errors import GelsimError
 
 def register(sub) -> None:
     from ..bench import DEFAULT_FABRICS, DEFAULT_FRAMES, DEFAULT_PRECONTACT, DEFAULT_RESOLUTIONS, LARGE_FRAMES, QUICK
-    from . import HelpFormatter
+    from . import HelpFormatter, seed_arg
 
     res = ",".join(f"{w}x{h}" for w, h in DEFAULT_RESOLUTIONS)
     qres = "{}x{}".format(*QUICK["resolution"])
@@ -45,7 +45,7 @@ def register(sub) -> None:
                    help="comma-separated fidelity levels (the reference is always run) [default: all]")
     p.add_argument("--reference", metavar="LEVEL", default="reference", help="level the errors are measured against")
     p.add_argument("--profile", metavar="NAME|PATH", default="vitac", help="sensor profile")
-    p.add_argument("--seed", type=int, metavar="N", default=0, help="scene seed")
+    p.add_argument("--seed", type=seed_arg, metavar="N", default=0, help="scene seed")
     p.add_argument("--format", choices=["h264", "ffv1", "png"], default="h264", help="video format timed as 'encode'")
     p.add_argument("--no-shortcut-study", action="store_true",
                    help="skip timing the balanced level without shortcuts and with labels only")
@@ -97,9 +97,16 @@ def configs_from_args(args) -> list:
     if args.no_shortcut_study:
         quick["shortcut_level"] = ""
     cache = "" if args.no_cache else (args.cache if args.cache is not None else str(Path(args.out) / "cache"))
+    if cache and Path(cache).exists() and not Path(cache).is_dir():
+        raise GelsimError(f"--cache {cache} is a file, not a folder; give a folder for the reference runs, or --no-cache")
     cat = load_catalog()
     for f in quick["fabrics"]:
         cat[f]  # an unknown id raises GelsimError naming the valid ids
+    from ..sensor import load_profile
+
+    profile = load_profile(args.profile)
+    for w, h in resolutions:
+        profile.with_resolution(w, h)   # a size outside the sensor's range: one line, before any work
     cfgs = [BenchConfig.at(r, levels=_split(args.levels), reference=args.reference, profile=args.profile,
                            seed=args.seed, video_format=args.format, cache_dir=cache, **quick) for r in resolutions]
     for c in cfgs:
@@ -108,10 +115,17 @@ def configs_from_args(args) -> list:
 
 
 def run_bench_cmd(args) -> int:
-    from .. import bench
-    from . import print_result
+    from ..atomic import out_folder
 
-    cfgs = configs_from_args(args)
+    with out_folder(args.out):      # a file of that name: one line before minutes of work
+        return _run_bench(args, configs_from_args(args))
+
+
+def _run_bench(args, cfgs) -> int:
+    from .. import bench
+    from . import print_result, say_first_run
+
+    say_first_run("gelsim bench")
 
     def say(line: str) -> None:
         if not args.json:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from . import HelpFormatter, print_json
+from . import HelpFormatter, needs_subcommand, print_json, seed_arg
 
 
 def register(subparsers) -> None:
@@ -14,7 +14,6 @@ def register(subparsers) -> None:
     common.add_argument("--catalog", default=None, metavar="PATH",
                         help="catalog folder or .toml file (None: the shipped gelsim/assets/fabrics/)")
     sub = p.add_subparsers(dest="fabrics_command", metavar="SUBCOMMAND")
-    p.set_defaults(handler=lambda args: (p.print_help(), 2)[1])
 
     q = sub.add_parser("list", help="table of all fabrics", formatter_class=HelpFormatter, parents=[common],
                        description="All fabrics with family, material and physical parameters.")
@@ -29,7 +28,7 @@ def register(subparsers) -> None:
                    help="output PNG file (required)")
     q.add_argument("--size-mm", type=float, default=10.0, help="side of the square patch shown, mm")
     q.add_argument("--mm-per-px", type=float, default=0.01, help="resolution, mm per pixel")
-    q.add_argument("--seed", type=int, default=0, help="random seed of the fabric's irregularities (integer)")
+    q.add_argument("--seed", type=seed_arg, default=0, help="random seed of the fabric's irregularities (integer)")
     q.add_argument("--rotation-deg", type=float, default=0.0, help="rotation of the fabric, degrees")
     q.set_defaults(handler=_show)
 
@@ -40,8 +39,9 @@ def register(subparsers) -> None:
     q.add_argument("--tile-mm", type=float, default=5.0, help="side of each fabric's tile, mm")
     q.add_argument("--mm-per-px", type=float, default=0.025, help="resolution of the tiles, mm per pixel")
     q.add_argument("--columns", type=int, default=10, help="tiles per row (count)")
-    q.add_argument("--seed", type=int, default=0, help="random seed of the fabrics' irregularities (integer)")
+    q.add_argument("--seed", type=seed_arg, default=0, help="random seed of the fabrics' irregularities (integer)")
     q.set_defaults(handler=_sheet)
+    needs_subcommand(p, sub)
 
 
 def _catalog(args):

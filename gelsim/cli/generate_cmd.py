@@ -12,7 +12,7 @@ from ..errors import GelsimError
 def register(sub) -> None:
     from ..optics import BACKENDS
     from ..optics.torch_backend import DEFAULT_BATCH, TOL_MAX_DN
-    from . import HelpFormatter
+    from . import HelpFormatter, seed_arg
 
     p = sub.add_parser(
         "generate", formatter_class=HelpFormatter,
@@ -22,9 +22,10 @@ def register(sub) -> None:
             "per sequence, per-frame labels and DIR/manifest.json. Deterministic: each sequence has its own\n"
             "seed, so the output is the same for any --workers. Interrupted (Ctrl-C, kill -9), rerun the same\n"
             "command to finish without redoing finished sequences.\n\n"
-            "Presets: quick = 10 fabrics x 3 sequences at 320x240, fast (6-15 s on 2 cores; `make demo`);\n"
+            "Presets: quick = 10 fabrics x 4 sequences at 320x240, fast, split 2:1:1 (`make demo`; a test split\n"
+            "                 for `stam train --config quick` and `stam evaluate`; docs/quickstart.md);\n"
             "         cpu   = 100 fabrics x 20 sequences at 320x240, balanced, split 7:2:11 (sized for\n"
-            "                 `stam experiment --preset cpu`: 1,100 test sequences resolve a few points;\n"
+            "                 `stam experiment --config cpu`: 1,100 test sequences resolve a few points;\n"
             "                 13 min on 2 cores). With --resolution 960x720, the camera's own frames: about\n"
             "                 2.5x the time, and every Tables I/II cell 11-19 points higher (docs/stam_results.md).\n"
             "Options given with a preset override it."),
@@ -44,12 +45,15 @@ def register(sub) -> None:
                         "imply (docs/nuisance.md)]")
     p.add_argument("--nuisance", metavar="LEVEL",
                    help="what a real, hand-held sensor adds before and around the touch, a level of "
-                        "gelsim/assets/nuisance.toml: none, camera (the webcam's auto-exposure and white balance "
-                        "settling), handheld (camera + loose fibres of hairy fabrics); labels never change "
-                        "(docs/nuisance.md) [default: none]")
+                        "gelsim/assets/nuisance.toml: none; camera (the webcam's start-up, caught by the first "
+                        "recording of a cloth, one in 30); handheld (camera + loose fibres of hairy fabrics); "
+                        "webcam-restart (a stream started with every recording: dark first frames; contradicts "
+                        "ViTac). Labels never change; nuisance/ records what each frame got (docs/nuisance.md) "
+                        "[default: none]")
     p.add_argument("--nuisance-severity", metavar="S", type=float,
                    help="every stage of --nuisance's level at severity S: 0 off, 1 the data file's, up to 4 "
-                        "(a sweep's knob) [default: the level's]")
+                        "(a sweep's knob: more recordings catch the start-up, more fibres stand); only with a "
+                        "--nuisance level other than none [default: the level's]")
     p.add_argument("--profile", metavar="NAME|PATH", help="sensor profile [default: vitac, 960x720]")
     p.add_argument("--resolution", metavar="WxH", help="render at this size, same field of view in mm [default: the profile's]")
     p.add_argument("--fidelity", choices=["fast", "balanced", "reference"], help="speed/accuracy level [default: balanced]")
@@ -70,8 +74,9 @@ def register(sub) -> None:
     p.add_argument("--batch", type=int, metavar="FRAMES",
                    help="with --backend torch: frames rendered at once; the output is the same bytes for any "
                         f"batch [default: {DEFAULT_BATCH}]")
-    p.add_argument("--seed", type=int, metavar="N", help="dataset seed [default: 0]")
-    p.add_argument("--workers", type=int, metavar="N", default=None, help="worker processes [default: all cores]")
+    p.add_argument("--seed", type=seed_arg, metavar="N", help="dataset seed [default: 0]")
+    p.add_argument("--workers", type=int, metavar="N", default=None,
+                   help="worker processes, 1 to this machine's cores [default: all cores]")
     p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
                    help="run each sequence as a Ray task: alone, on a Ray instance started on this machine "
                         "(--workers CPUs); 'auto', on the cluster `ray start` made here; HOST:PORT, on that "
@@ -145,14 +150,17 @@ def run_generate(args: argparse.Namespace) -> int:
     from . import print_json
 
     cfg = config_from_args(args)
-    if args.workers is not None and args.workers < 1:
-        raise GelsimError("--workers must be at least 1")
+    if args.ray is None or args.ray == "local":
+        dataset.check_workers(args.workers)
     if args.dry_run:
         return _dry_run(cfg, args)
     if args.ray is not None:
         from ..cluster import import_ray
 
         import_ray()  # not installed: one line, before anything is written
+    from . import say_first_run
+
+    say_first_run("gelsim generate")   # said by whichever worker compiles first
     bar = None
     frames_done = [0]
     t0 = time.perf_counter()
@@ -205,6 +213,7 @@ def _dry_run(cfg, args) -> int:
     from ..fidelity import get_fidelity
 
     dataset.check_render(cfg, get_fidelity(cfg.fidelity))  # and a device this machine lacks
+    dataset.nuisance_level(cfg)                           # and a nuisance level that does not exist
     specs = dataset.plan(cfg, len(catalog))
     frames = sum(s.num_frames for s in specs)
     try:

@@ -103,6 +103,8 @@ def run_calibrate(args) -> int:
 
     _positive("--mm-per-px", args.mm_per_px)
     _positive("--ball-diameter-mm", args.ball_diameter_mm)
+    if not str(args.out).endswith(".toml"):     # (calibrate says it too, after minutes of fitting)
+        raise GelsimError(f"--out {args.out} must end in .toml; the table and background go beside it")
     base = load_profile(args.base_profile)
     pack = _pack(args.datapack, args.channel_order)
     log = (lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr, flush=True))
@@ -214,6 +216,10 @@ def score_lines(rep: dict) -> list[str]:
 def run_realism(args) -> int:
     from . import print_json
 
+    if args.out is not None:
+        from ..atomic import check_out_file
+
+        check_out_file(args.out)                 # before the data pack is read and scored
     rep = realism_report(args.profile, args.datapack, args.frames, mm_per_px=args.mm_per_px,
                          ball_diameter_mm=args.ball_diameter_mm, channel_order=args.channel_order, out=args.out,
                          centres=args.centres)

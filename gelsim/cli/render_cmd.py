@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import time
 
-from . import HelpFormatter, print_result, warn_if_bottomed
+from . import HelpFormatter, print_result, seed_arg, warn_if_bottomed
 from ..frame import DEFAULT_FORCE_N
 from ..optics import BACKENDS
 
@@ -18,7 +18,8 @@ def register(subparsers) -> None:
                       help="fabric id from `gelsim fabrics list` (default: an indenter)")
     what.add_argument("--indenter", default=None, metavar="sphere|cylinder|PATH.stl",
                       help="indenter shape or mesh file (default: sphere when no --fabric)")
-    p.add_argument("--diameter-mm", type=float, default=4.0, help="sphere or cylinder diameter, mm")
+    p.add_argument("--diameter-mm", type=float, default=None,
+                   help="sphere or cylinder diameter, mm (default 4; not for a fabric or a mesh)")
     how = p.add_mutually_exclusive_group()
     how.add_argument("--force-n", type=float, default=None,
                      help=f"normal force, N (default {DEFAULT_FORCE_N} when --depth-mm is not given)")
@@ -30,17 +31,29 @@ def register(subparsers) -> None:
                    help="with --backend torch: where it renders (default: cpu)")
     p.add_argument("--fidelity", default="balanced", choices=["fast", "balanced", "reference"],
                    help="fidelity level (imprint model, supersampling, default backend)")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seed", type=seed_arg, default=0,
                    help="random seed: fabric irregularities, background field, marker jitter, noise (integer)")
     p.add_argument("--out", required=True, metavar="FILE.png", help="output PNG file (required)")
     p.add_argument("--json", action="store_true", help="also print what was rendered and each stage's time (ms)")
     p.set_defaults(handler=run)
 
 
-def make_object(fabric: int | None, indenter: str | None, diameter_mm: float):
-    """The touched object the options name: catalog fabric ``fabric``, or the indenter (sphere by default)."""
+#: The sphere's or cylinder's diameter when none is given, mm.
+DEFAULT_DIAMETER_MM = 4.0
+
+
+def make_object(fabric: int | None, indenter: str | None, diameter_mm: float | None):
+    """The touched object the options name: catalog fabric ``fabric``, or the indenter (sphere by default).
+    ``diameter_mm`` (None: DEFAULT_DIAMETER_MM) is for a sphere or cylinder only: given with a fabric or a
+    mesh it would change nothing, and is refused."""
+    from ..errors import GelsimError
     from ..scene import FabricObject, indenter as make_indenter
 
+    sized = fabric is None and (indenter or "sphere") in ("sphere", "cylinder")
+    if diameter_mm is not None and not sized:
+        raise GelsimError("--diameter-mm is for --indenter sphere or cylinder, and would change nothing here; "
+                          "drop it")
+    diameter_mm = DEFAULT_DIAMETER_MM if diameter_mm is None else diameter_mm
     if fabric is not None:
         from ..fabrics import load_catalog
 
@@ -53,8 +66,11 @@ def run(args) -> int:
     from ..atomic import check_out_file, write_png
     from ..frame import render_frame
 
+    from . import say_first_run
+
     t0 = time.perf_counter()
     out = check_out_file(args.out)     # before the work, not after it
+    say_first_run("gelsim render")
     rgb, info = render_frame(make_object(args.fabric, args.indenter, args.diameter_mm), args.profile, args.fidelity,
                              force_n=args.force_n, depth_mm=args.depth_mm, backend=args.backend, seed=args.seed,
                              device=args.device)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 
 def register(sub) -> None:
-    from . import HelpFormatter
+    from . import HelpFormatter, needs_subcommand
 
     p = sub.add_parser("sensors", formatter_class=HelpFormatter, help="list the shipped sensor profiles",
                        description="Sensor profiles shipped in assets/sensors/ (any profile .toml elsewhere works "
@@ -33,12 +33,7 @@ def register(sub) -> None:
     sh.add_argument("name", metavar="NAME|PATH", help="profile name (gelsim sensors list) or .toml path")
     sh.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     sh.set_defaults(handler=run_show)
-    p.set_defaults(handler=lambda args: _no_subcommand(p))
-
-
-def _no_subcommand(parser) -> int:
-    parser.print_help()
-    return 2
+    needs_subcommand(p, sp)
 
 
 def sensors_table() -> list[dict]:

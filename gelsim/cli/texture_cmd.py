@@ -10,7 +10,7 @@ from ..errors import GelsimError
 
 
 def register(sub) -> None:
-    from . import HelpFormatter
+    from . import HelpFormatter, seed_arg
 
     p = sub.add_parser(
         "texture", formatter_class=HelpFormatter,
@@ -38,7 +38,7 @@ def register(sub) -> None:
     p.add_argument("--resolution", default=None, metavar="WxH",
                    help="render at this size, same field of view [default: the profile's]")
     p.add_argument("--no-codec", action="store_true", help="skip the H.264 round trip")
-    p.add_argument("--seed", type=int, default=0, help="fabric irregularity and noise seed")
+    p.add_argument("--seed", type=seed_arg, default=0, help="fabric irregularity and noise seed")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write texture.json, texture.md (per family) and texture.png there")
     p.add_argument("--sheet", default=None, metavar="FILE.png",
@@ -61,6 +61,9 @@ def _ids(args, n_catalog: int) -> list[int]:
         for part in spec.split(","):
             if "-" in part:
                 a, b = (int(v) for v in part.split("-", 1))
+                if a > b:
+                    raise GelsimError(f"--fabrics {spec!r}: the range {part} is inverted; write A-B with A <= B, "
+                                      "e.g. 1-100")
                 ids += list(range(a, b + 1))
             else:
                 ids.append(int(part))
@@ -93,7 +96,9 @@ def run_texture(args) -> int:
     from ..runtime import configure_worker
     from ..sensor import load_profile
     from ..texture import crop_at, texture_budget
-    from . import print_json
+    from . import print_json, say_first_run
+
+    say_first_run("gelsim texture")
 
     configure_worker()
     cat = load_catalog()

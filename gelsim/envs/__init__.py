@@ -8,8 +8,10 @@ Importing this package registers every environment of :data:`ENVS` with Gymnasiu
     env = gym.make("gelsim/Grasp-v0", render_mode="rgb_array")
     envs = gym.make_vec("gelsim/Grasp-v0", num_envs=4)
 
-(``gym.make("gelsim.envs:gelsim/Grasp-v0")`` imports it on the way). Importing it without gymnasium
-raises a GelsimError naming the install command.
+``gym.make("gelsim.envs:gelsim/Grasp-v0")`` imports it on the way, in a fresh interpreter too: Gymnasium 1.x
+reads no entry points (its plugin group was removed in 1.0), so a module-qualified id or this import is
+what registers a third-party package's ids. Importing it without gymnasium raises a GelsimError naming the
+install command.
 """
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ except ImportError:  # the optional extra is missing
     from ..errors import GelsimError
 
     raise GelsimError("gelsim.envs needs gymnasium, an optional extra; install it with `make gym` "
-                      "(or pip install 'gelsim[gym]')") from None
+                      "in the clone, or `pip install gymnasium==1.4.0`") from None
 
 from .grasp import GraspEnv  # noqa: E402
 

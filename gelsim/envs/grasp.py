@@ -11,7 +11,9 @@ seed unless ``object`` is given). One step is one tactile camera frame (1/30 s o
 * reward: the object's rise since the start, m, per step; the episode ends (terminated) once it
   is LIFT_GOAL_M up, or after ``max_steps`` (truncated).
 * ``render_mode="rgb_array"``: :meth:`GraspEnv.render` returns the two tactile images side by side,
-  uint8 (H, 2 W, 3) RGB, left finger first (what the gripper feels; it needs no OpenGL).
+  uint8 (H, 2 W, 3) RGB, left finger first (what the gripper feels; it needs no OpenGL). There is no
+  ``"human"`` mode: gelsim opens no window; show the image with matplotlib, or write the frames to a video
+  (:func:`gelsim.video.write_video`).
 
 Registered with Gymnasium as ``gelsim/Grasp-v0`` (:mod:`gelsim.envs`).
 """
@@ -45,7 +47,9 @@ class GraspEnv(gym.Env):
         if object is not None and object not in OBJECTS:
             raise GelsimError(f"unknown object {object!r}; choose one of {', '.join(OBJECTS)} or None")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise GelsimError(f"render_mode {render_mode!r} is not supported; give 'rgb_array' or None")
+            # no "human": gelsim opens no window (it runs headless); a caller shows render()'s image itself
+            raise GelsimError(f"render_mode {render_mode!r} is not supported (gelsim opens no window); give "
+                              "'rgb_array' and show env.render()'s image (e.g. matplotlib's imshow), or None")
         self.render_mode = render_mode
         self._last: tuple[np.ndarray, np.ndarray] | None = None
         self.resolution, self.profile, self.object, self.max_steps = tuple(resolution), profile, object, int(max_steps)

@@ -199,10 +199,12 @@ def press(protrusion_mm: np.ndarray, profile, fidelity, *, force_n: float | None
     if (force_n is not None and force_n == 0) or (depth_mm is not None and depth_mm == 0):
         return _no_contact(profile)
     gel = profile.gel
-    beyond = force_n is not None and force_n > gel_capacity_n(profile)
+    beyond = ((force_n is not None and force_n > gel_capacity_n(profile))
+              or (depth_mm is not None and depth_mm > gel.max_indentation_mm))
     if beyond:
-        # More than the gel can carry at full travel (1e20 N overflowed the float32 solve into NaN): the
-        # pad bottoms out whatever it presses, so press it to its travel (the same bottomed imprint).
+        # More than the gel can carry at full travel (1e20 N overflowed the float32 solve into NaN), or an
+        # approach past the travel (the cloth solve has no case for one): the pad bottoms out whatever it
+        # presses, so press it to its travel (the same bottomed imprint).
         force_n, depth_mm = None, gel.max_indentation_mm
     ws = work_shape(profile, fidelity.imprint_scale)
     if prot.shape == profile.shape:

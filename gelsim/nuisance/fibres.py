@@ -110,26 +110,34 @@ def _check_gap(gap_mm: np.ndarray) -> np.ndarray:
     return g
 
 
-def fibre_dents_mm(fibres: Fibres, gap_mm: np.ndarray, mm_per_px: float, gel_modulus_mpa: float,
-                   gel_poisson: float, p: FibreParams) -> np.ndarray:
-    """The gel's depth from the fibres' dents, float32 ``(H, W)`` mm (``gap_mm``'s shape), to add to the
-    imprint's depth. ``gap_mm``: the gap between gel and fabric at each pixel (float (H, W), mm; <= 0 where
-    the fabric is in contact). Pixel (i, j) is at ``x = (j - (W - 1) / 2) mm_per_px``, ``y = (i - (H - 1) / 2)
-    mm_per_px``. Each dent is a flat punch profile out to ``p.tail_radii`` fibre radii (lowered so that it
-    ends at 0 and rescaled to keep its depth), area-averaged over SUPERSAMPLE^2 points per pixel; dents add."""
+def fibre_depths_mm(fibres: Fibres, gap_mm: np.ndarray, mm_per_px: float, gel_modulus_mpa: float,
+                    gel_poisson: float, p: FibreParams) -> np.ndarray:
+    """Each fibre's dent depth in this frame, float64 (N,) mm (0: not touching, or outside the image), from the
+    gap map ``gap_mm`` (float (H, W) mm, <= 0 where the fabric is in contact) read at the fibre's pixel (pixel
+    (i, j) is at ``x = (j - (W - 1) / 2) mm_per_px``, ``y = (i - (H - 1) / 2) mm_per_px``)."""
     g = _check_gap(gap_mm)
     if not (math.isfinite(mm_per_px) and mm_per_px > 0):
         raise GelsimError(f"mm_per_px {mm_per_px} must be a positive number")
     H, W = g.shape
-    out = np.zeros((H, W), np.float32)
     if len(fibres) == 0:
-        return out
+        return np.zeros(0)
     col = np.clip(np.rint(fibres.x_mm / mm_per_px + (W - 1) / 2.0), 0, W - 1).astype(np.int64)
     row = np.clip(np.rint(fibres.y_mm / mm_per_px + (H - 1) / 2.0), 0, H - 1).astype(np.int64)
     inside = (np.abs(fibres.x_mm) <= (W / 2.0) * mm_per_px) & (np.abs(fibres.y_mm) <= (H / 2.0) * mm_per_px)
     depth = dent_depths_mm(fibres, g[row, col].astype(np.float64), gel_modulus_mpa, gel_poisson, p)
+    return np.where(inside, depth, 0.0)
+
+
+def draw_dents_mm(fibres: Fibres, depth_mm: np.ndarray, shape: tuple[int, int], mm_per_px: float,
+                  p: FibreParams) -> np.ndarray:
+    """The gel's depth from the fibres' dents of depths ``depth_mm`` (N,) mm, float32 ``shape`` (H, W) mm, to add
+    to the imprint's depth. Each dent is a flat punch profile out to ``p.tail_radii`` fibre radii (lowered so
+    that it ends at 0 and rescaled to keep its depth), area-averaged over SUPERSAMPLE^2 points per pixel;
+    dents add."""
+    H, W = (int(v) for v in shape)
+    out = np.zeros((H, W), np.float32)
     sub = (np.arange(SUPERSAMPLE) + 0.5) / SUPERSAMPLE - 0.5          # sub-sample offsets, px
-    for k in np.flatnonzero((depth > 0) & inside):
+    for k in np.flatnonzero(np.asarray(depth_mm) > 0):
         a = fibres.diameter_mm[k] / 2.0
         reach = p.tail_radii * a
         cx = fibres.x_mm[k] / mm_per_px + (W - 1) / 2.0                # fibre centre, px
@@ -146,8 +154,16 @@ def fibre_dents_mm(fibres: Fibres, gap_mm: np.ndarray, mm_per_px: float, gel_mod
         prof = np.where(r <= a, 1.0, (2.0 / math.pi) * np.arcsin(np.minimum(1.0, a / np.maximum(r, 1e-12))))
         prof = np.where(r <= reach, (prof - edge) / (1.0 - edge), 0.0)
         patch = prof.reshape(i1 - i0, SUPERSAMPLE, j1 - j0, SUPERSAMPLE).mean(axis=(1, 3))
-        out[i0:i1, j0:j1] += (depth[k] * patch).astype(np.float32)
+        out[i0:i1, j0:j1] += (depth_mm[k] * patch).astype(np.float32)
     return out
+
+
+def fibre_dents_mm(fibres: Fibres, gap_mm: np.ndarray, mm_per_px: float, gel_modulus_mpa: float,
+                   gel_poisson: float, p: FibreParams) -> np.ndarray:
+    """The gel's depth from the fibres' dents, float32 ``(H, W)`` mm (``gap_mm``'s shape), to add to the
+    imprint's depth: :func:`draw_dents_mm` of :func:`fibre_depths_mm`."""
+    depth = fibre_depths_mm(fibres, gap_mm, mm_per_px, gel_modulus_mpa, gel_poisson, p)
+    return draw_dents_mm(fibres, depth, np.shape(gap_mm), mm_per_px, p)
 
 
 def gap_map_mm(shape: tuple[int, int], mm_per_px: float, apex_gap_mm: float, dome_radius_mm: float = 0.0,

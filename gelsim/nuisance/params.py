@@ -8,6 +8,7 @@ file and key.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,8 +20,8 @@ from ..params import ASSETS_DIR, build, load_toml, param
 
 NUISANCE_FILE = ASSETS_DIR / "nuisance.toml"
 #: The stages, in the order a frame goes through them: the fibres dent the gel (before shading), the
-#: camera's exposure and white balance scale the light (before noise and quantisation).
-STAGES = ("fibres", "exposure", "white_balance")
+#: camera's start-up scales the light (before noise and quantisation).
+STAGES = ("fibres", "startup")
 #: Largest severity a level or a sweep may ask for (4 x each stage's nominal effect).
 MAX_SEVERITY = 4.0
 #: The level that changes nothing (no stage runs, no generator is drawn).
@@ -34,34 +35,32 @@ def _check_range(where: str, r: Range, lo: float, hi: float) -> None:
         raise GelsimError(f"{where}: [{r[0]}, {r[1]}] must satisfy {lo} <= low <= high <= {hi}; give [low, high]")
 
 
-@dataclass(frozen=True)
-class ExposureParams:
-    """The webcam's auto-exposure (libcamera's Raspberry Pi AGC rules). Ratios are exposures relative to the
-    settled one (the gelsim frame at gain 1); frames are camera frames."""
-    start_ratio: Range = param(doc="frame 0's exposure over the settled one, uniform [low, high]")
-    delay_frames: int = param(2, lo=1, hi=8, doc="frames between the frame an exposure is computed from and the first it applies to")
-    startup_frames: int = param(10, lo=0, hi=1000, doc="frames in which the controller jumps straight to its target")
-    speed: float = param(0.2, lo=0.0, hi=1.0, lo_open=True, doc="fraction of the way to the target per frame after start-up")
-    near_band: float = param(0.2, lo=0.0, hi=1.0, doc="within this relative distance of the target the speed is sqrt(speed)")
-    stable_region: float = param(0.02, lo=0.0, hi=0.5, doc="within this relative distance nothing changes")
-
-    def validate(self, where: str) -> None:
-        _check_range(f"{where}.start_ratio", self.start_ratio, 0.0, 1.0)
+IntRange = tuple[int, int]
 
 
 @dataclass(frozen=True)
-class WhiteBalanceParams:
-    """The webcam's auto white balance (libcamera's Raspberry Pi AWB rules): R and B gains against G."""
-    start_offset_max: float = param(doc="largest relative error of the R and B gains at frame 0")
-    startup_frames: int = param(10, lo=0, hi=1000, doc="frames updated every frame at speed 1")
-    period_frames: int = param(10, lo=1, hi=1000, doc="after start-up, one update every this many frames")
-    speed: float = param(0.05, lo=0.0, hi=1.0, lo_open=True, doc="fraction of the way per update after start-up")
-    delay_frames: int = param(1, lo=1, hi=8, doc="frames before an update's gains apply")
+class StartupParams:
+    """The webcam's start-up: auto-exposure and auto white balance settling after its stream starts. Gains
+    are relative to the settled frame (gelsim's frame at gain 1); frames are camera frames of the stream."""
+    restart_share: float = param(lo=0.0, hi=1.0, doc="share of recordings that catch a fresh stream at severity 1")
+    preroll_frames: IntRange = param(doc="frames the stream ran before such a recording's frame 0, uniform [low, high]")
+    exposure_start: Range = param(doc="the stream's first frame's exposure over the settled one, uniform [low, high]")
+    exposure_delay_frames: int = param(lo=0, hi=8, doc="frames kept at the start exposure")
+    exposure_settle_frames: IntRange = param(doc="stream frame by which the exposure is within stable_region")
+    white_balance_start_max: float = param(doc="largest relative error of the R and B gains at the stream's start")
+    white_balance_delay_frames: int = param(lo=0, hi=8, doc="frames kept at the start balance")
+    white_balance_settle_frames: IntRange = param(doc="stream frame by which the balance is within stable_region")
+    stable_region: float = param(0.02, lo=0.0, hi=0.5, lo_open=True, doc="a controller this close to its target stops")
 
     def validate(self, where: str) -> None:
-        if not 0.0 <= self.start_offset_max < 1.0 / MAX_SEVERITY:
-            raise GelsimError(f"{where}.start_offset_max: {self.start_offset_max} must be in [0, {1 / MAX_SEVERITY:g}) "
-                              f"so that a severity up to {MAX_SEVERITY:g} keeps every gain positive")
+        _check_range(f"{where}.exposure_start", self.exposure_start, 1e-3, 1.0)
+        _check_range(f"{where}.preroll_frames", self.preroll_frames, 0, 10_000)
+        if not 0.0 <= self.white_balance_start_max < 1.0:
+            raise GelsimError(f"{where}.white_balance_start_max: {self.white_balance_start_max} must be in [0, 1) "
+                              "so that every gain stays positive")
+        for name, delay in (("exposure", self.exposure_delay_frames), ("white_balance", self.white_balance_delay_frames)):
+            r = getattr(self, f"{name}_settle_frames")
+            _check_range(f"{where}.{name}_settle_frames", r, delay + 1, 10_000)
 
 
 @dataclass(frozen=True)
@@ -83,8 +82,7 @@ class FibreParams:
 
 @dataclass(frozen=True)
 class StageParams:
-    exposure: ExposureParams
-    white_balance: WhiteBalanceParams
+    startup: StartupParams
     fibres: FibreParams
 
 
@@ -93,6 +91,7 @@ class NuisanceModel:
     """The stages' parameters and the named levels (level name -> {stage: severity})."""
     stages: StageParams
     levels: Mapping[str, Mapping[str, float]]
+    overrides: Mapping[str, Mapping[str, Mapping[str, object]]] = dataclasses.field(default_factory=dict)
 
     def level(self, name: str, severity: float | None = None) -> dict[str, float]:
         """The stages of level ``name`` with their severities, in :data:`STAGES` order (stages at 0
@@ -109,6 +108,16 @@ class NuisanceModel:
                     out[stage] = s
         return out
 
+    def stages_for(self, name: str) -> StageParams:
+        """The stages' parameters as level ``name`` runs them: the file's, with the level's own
+        ``[levels.NAME.params.STAGE]`` values in place."""
+        if name not in self.levels:
+            raise GelsimError(f"unknown nuisance level {name!r}; choose one of {', '.join(self.levels)}")
+        stages = self.stages
+        for stage, values in self.overrides.get(name, {}).items():
+            stages = dataclasses.replace(stages, **{stage: dataclasses.replace(getattr(stages, stage), **values)})
+        return stages
+
 
 def check_severity(value: float, where: str = "severity") -> float:
     """``value`` as a float in [0, MAX_SEVERITY], else a GelsimError naming ``where``."""
@@ -118,13 +127,31 @@ def check_severity(value: float, where: str = "severity") -> float:
     return float(value)
 
 
-def _levels(data: object, where: str) -> Mapping[str, Mapping[str, float]]:
+def _levels(data: object, where: str, stages: StageParams):
+    """The levels (name -> {stage: severity}) and their parameter overrides (name -> {stage: {key: value}}),
+    each override checked by building the stage's parameters with it."""
     if not isinstance(data, dict) or not data:
         raise GelsimError(f"{where}: expected tables of named levels, e.g. [levels.camera]")
-    out = {}
+    out, overrides = {}, {}
     for name, table in data.items():
         if not isinstance(table, dict):
             raise GelsimError(f"{where}.{name}: expected a table of stage = severity")
+        table = dict(table)
+        params = table.pop("params", {})
+        if not isinstance(params, dict) or any(not isinstance(v, dict) for v in params.values()):
+            raise GelsimError(f"{where}.{name}.params: expected tables [levels.{name}.params.STAGE] of parameter = value")
+        for stage, values in params.items():
+            if stage not in STAGES:
+                raise GelsimError(f"{where}.{name}.params.{stage}: unknown stage; known stages are {', '.join(STAGES)}")
+            base = {f.name: getattr(getattr(stages, stage), f.name)
+                    for f in dataclasses.fields(getattr(stages, stage))}
+            unknown = sorted(set(values) - set(base))
+            if unknown:
+                raise GelsimError(f"{where}.{name}.params.{stage}.{unknown[0]}: unknown parameter; "
+                                  f"known: {', '.join(base)}")
+            built = build(type(getattr(stages, stage)), {**base, **values}, where=f"{where}.{name}.params.{stage}")
+            overrides.setdefault(name, {})[stage] = MappingProxyType(
+                {k: getattr(built, k) for k in values})
         for stage, sev in table.items():
             if stage not in STAGES:
                 raise GelsimError(f"{where}.{name}.{stage}: unknown stage; known stages are {', '.join(STAGES)}")
@@ -132,7 +159,7 @@ def _levels(data: object, where: str) -> Mapping[str, Mapping[str, float]]:
         out[name] = MappingProxyType({k: float(v) for k, v in table.items()})
     if NONE_LEVEL not in out or any(v > 0 for v in out[NONE_LEVEL].values()):
         raise GelsimError(f"{where}.{NONE_LEVEL}: must exist and switch every stage off (it is today's output)")
-    return MappingProxyType(out)
+    return MappingProxyType(out), MappingProxyType({k: MappingProxyType(v) for k, v in overrides.items()})
 
 
 def load_nuisance(path: str | Path | None = None) -> NuisanceModel:
@@ -145,4 +172,5 @@ def load_nuisance(path: str | Path | None = None) -> NuisanceModel:
     if "stages" not in data or "levels" not in data:
         raise GelsimError(f"{path.name}: needs [stages.*] and [levels.*] tables")
     stages = build(StageParams, data["stages"], where=f"{path.name}:stages")
-    return NuisanceModel(stages=stages, levels=_levels(data["levels"], f"{path.name}:levels"))
+    levels, overrides = _levels(data["levels"], f"{path.name}:levels", stages)
+    return NuisanceModel(stages=stages, levels=levels, overrides=overrides)

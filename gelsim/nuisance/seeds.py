@@ -14,8 +14,9 @@ from .params import STAGES
 #: Tag mixed into every nuisance generator's seed ("nuis" in ASCII), apart from the other streams a sequence
 #: seed feeds (motion, fabric, camera noise).
 NUISANCE_TAG = 0x6E756973
-#: Fixed per stage: changing a stage's position in STAGES must not change its draws.
-STAGE_TAGS = {"fibres": 1, "exposure": 2, "white_balance": 3}
+#: Fixed per stage: changing a stage's position in STAGES must not change its draws. (2 and 3 were the
+#: exposure and white-balance stages before they became one start-up stage: not reused.)
+STAGE_TAGS = {"fibres": 1, "startup": 4}
 assert set(STAGE_TAGS) == set(STAGES)
 
 

@@ -2,17 +2,16 @@
 
 :class:`SequenceNuisance` is built once per sequence from a level's stages and the sequence's seed; for
 each frame it gives a :class:`FrameNuisance`: the fibres' dents (mm, added to the depth the optics
-render, never to the imprint the labels come from) and the camera's per-channel gains (exposure x white
-balance, applied by :class:`gelsim.optics.composite.CameraGains` before the noise). Both are computed on
-the CPU from the sequence's own generators (:func:`gelsim.nuisance.seeds.stage_rng`), so every backend,
-batch size and worker count renders the same inputs.
+render, never to the imprint the labels come from), the camera's per-channel gains (exposure x white
+balance of the start-up, applied by :class:`gelsim.optics.composite.CameraGains` before the noise) and what
+was applied (the per-frame record, :mod:`gelsim.nuisance.record`). All of it is computed on the CPU from the
+sequence's own generators (:func:`gelsim.nuisance.seeds.stage_rng`), so every backend, batch size and worker
+count renders the same inputs.
 
-The camera's controllers meter a scene whose mean stays at the flat gel's (luma and channel ratios 1):
-its gains are then a function of the seed and the frame index alone, known before the frame is
-rendered (a batch renders them without waiting for the frames before). A touch moves a 320x240 frame's
-mean luminance by 0.9% (median over 40 sequences) to 2.7% (largest) of frame 0's, about the AGC's 2%
-stable region: metering the rendered frames would move the start-up gains by up to that much and start
-no correction after them (measured 2026-11-28 on the cpu preset's data; docs/nuisance.md).
+The start-up's gains are a function of the seed and the frame index alone, known before any frame is
+rendered: the controllers' answer to the touch itself is not modelled (a touch moves a 320x240 frame's mean
+luminance by 0.9% in the median, at most 2.7%, of the flat gel's: about the AGC's 2% stable region, so a
+settled camera barely answers it; measured 2026-11-28 on the cpu preset's data, docs/nuisance.md).
 """
 from __future__ import annotations
 
@@ -22,35 +21,23 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import GelsimError
-from .camera import camera_start, camera_step
-from .fibres import approach_gap_mm, draw_fibres, fibre_dents_mm, gap_map_mm
+from .camera import draw_startup, startup_gains
+from .fibres import approach_gap_mm, draw_dents_mm, draw_fibres, fibre_depths_mm, gap_map_mm
 from .params import STAGES, StageParams
 from .seeds import stage_rng
-
-#: What the camera's controllers meter: the flat gel's channel means, relative (the scene is taken as flat).
-_FLAT = np.ones((1, 1, 3), np.float32)
-_FLAT_MEANS = np.ones(3)
 
 
 @dataclass(frozen=True)
 class FrameNuisance:
-    """One frame's nuisance inputs: ``dents_mm`` float32 ``(H, W)`` mm added to the rendered depth (None: no
-    dent), ``gains`` float64 ``(3,)`` per-channel gains before the noise (None: all 1)."""
+    """One frame's nuisance inputs and what they were: ``dents_mm`` float32 ``(H, W)`` mm added to the
+    rendered depth (None: no dent), ``gains`` float64 ``(3,)`` per-channel gains before the noise (None: all
+    1); for the record, ``stream_age_frames`` (frames since the camera's stream started; -1: settled),
+    ``fibres_touching`` (fibres denting the gel) and ``fibre_dent_max_mm`` (the deepest dent, mm)."""
     dents_mm: np.ndarray | None = None
     gains: np.ndarray | None = None
-
-
-def camera_gains(seed: int, severities: Mapping[str, float], stages: StageParams, num_frames: int) -> np.ndarray | None:
-    """The camera's per-channel gains of each frame of a sequence, float64 ``(T, 3)``, or None when neither
-    camera stage runs (``severities``: stage -> severity, as :meth:`~gelsim.nuisance.params.NuisanceModel.level`
-    gives)."""
-    state = camera_start(seed, dict(severities), stages)
-    if state.exposure is None and state.white_balance is None:
-        return None
-    out = np.empty((num_frames, 3))
-    for t in range(num_frames):
-        out[t], state = camera_step(state, _FLAT, _FLAT_MEANS, stages)
-    return out
+    stream_age_frames: int = -1
+    fibres_touching: int = 0
+    fibre_dent_max_mm: float = 0.0
 
 
 class SequenceNuisance:
@@ -67,14 +54,17 @@ class SequenceNuisance:
         if unknown:
             raise GelsimError(f"unknown nuisance stage {sorted(unknown)[0]!r}; known stages are {', '.join(STAGES)}")
         self.profile, self.motion, self.stages = profile, motion, stages
-        self.gains = camera_gains(seed, severities, stages, motion.num_frames)
+        self.startup = None
+        self.gains = None
+        if severities.get("startup", 0.0) > 0:
+            self.startup = draw_startup(stage_rng(seed, "startup"), stages.startup, severities["startup"])
+            self.gains = startup_gains(self.startup, motion.num_frames, stages.startup)
         self.fibres = None
         if severities.get("fibres", 0.0) > 0 and hairiness > 0:
             f = draw_fibres(stage_rng(seed, "fibres"), profile.field_mm, float(hairiness), stages.fibres,
                             severities["fibres"])
             self.fibres = f if len(f) else None
         self._last_contact = None
-        self.last: FrameNuisance | None = None      # what frame() gave last
         self.active = self.gains is not None or self.fibres is not None
 
     def _apex_gap_mm(self, i: int, indentation_mm: float | None) -> float:
@@ -90,22 +80,27 @@ class SequenceNuisance:
         return m.approach_speed_mm_s * max(i - last, 1) / fps       # lifting off at the approach speed
 
     def frame(self, i: int, imprint=None, *, tilt_deg=(0.0, 0.0)) -> FrameNuisance | None:
-        """Frame ``i``'s inputs (None: nothing to add; also kept as :attr:`last`), given its
-        :class:`~gelsim.gel.Imprint` (None where nothing presses) and the sensor's tilt (roll, pitch)
-        degrees. Call in frame order."""
-        self.last = self._frame(i, None if imprint is None else float(imprint.indentation_mm), tilt_deg)
-        return self.last
+        """Frame ``i``'s inputs (None: nothing to add), given its :class:`~gelsim.gel.Imprint` (None where
+        nothing presses) and the sensor's tilt (roll, pitch) degrees. Call in frame order: the frame pipeline
+        (:func:`gelsim.stream.make_frames`) asks once per frame and hands the answer on in the frame's record
+        (:attr:`gelsim.stream.FrameRecord.nuisance`), which the per-frame record is written from."""
+        return self._frame(i, None if imprint is None else float(imprint.indentation_mm), tilt_deg)
 
     def _frame(self, i: int, indentation_mm: float | None, tilt_deg) -> FrameNuisance | None:
         if not self.active:
             return None
         p = self.profile
-        dents = None
+        dents, touching, deepest = None, 0, 0.0
         if self.fibres is not None:
             gap = gap_map_mm(p.shape, p.image.mm_per_px, self._apex_gap_mm(i, indentation_mm), p.gel.dome_radius_mm,
                              tuple(float(v) for v in tilt_deg))
-            d = fibre_dents_mm(self.fibres, gap, p.image.mm_per_px, p.gel.young_modulus_mpa, p.gel.poisson_ratio,
-                               self.stages.fibres)
-            dents = d if d.any() else None
+            depth = fibre_depths_mm(self.fibres, gap, p.image.mm_per_px, p.gel.young_modulus_mpa,
+                                    p.gel.poisson_ratio, self.stages.fibres)
+            touching = int(np.count_nonzero(depth))
+            if touching:
+                deepest = float(depth.max())
+                d = draw_dents_mm(self.fibres, depth, p.shape, p.image.mm_per_px, self.stages.fibres)
+                dents = d if d.any() else None
         gains = None if self.gains is None else self.gains[i]
-        return None if dents is None and gains is None else FrameNuisance(dents, gains)
+        age = -1 if self.gains is None else int(self.startup.age_frames + i)
+        return FrameNuisance(dents, gains, age, touching, deepest)

@@ -93,8 +93,11 @@ class Renderer:
         self.supersample = int(supersample)
         self.seed = int(seed)
         self.optics = Optics.build(profile, self.supersample, self.seed)
-        fine, maps = self.optics.fine, self.optics.maps
         cls = shader_class(backend, profile)
+        fine = self.optics.fine
+        # (the light maps are made only for a shader that reads them: a calibrated table does not, and
+        # keeping them cost a dataset worker 41 MB of its peak at 960x720)
+        maps = self.optics.maps if cls.reads_light_maps(fine) else None
         self.shader: Shader = cls(fine, maps, device=device) if backend == "torch" else cls(fine, maps)
         self.stages = [stage(self.optics) for stage in stages]
         names = [st.name for st in self.stages]

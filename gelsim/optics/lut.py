@@ -281,6 +281,10 @@ class LutShader(Shader):
     # took 0.15 ms per frame less than 48 and than 120-240 (replay of dataset frames, 2-core machine)
     BAND_ROWS = 96
 
+    @classmethod
+    def reads_light_maps(cls, profile) -> bool:
+        return False
+
     def __init__(self, profile, maps=None, table: dict | None = None):
         self.profile = profile
         self.model = table_model(profile, table)

@@ -3,7 +3,8 @@
 A backend computes only the *shading change* of the deformed membrane over the flat gel, in image DN;
 the Renderer composes the background, markers, blur and noise around it (:mod:`gelsim.optics.composite`). A backend is a subclass of
 :class:`Shader`, built as ``cls(profile, maps)`` (the profile at the resolution being shaded, its
-:func:`~gelsim.optics.field.light_maps`), and implements:
+:func:`~gelsim.optics.field.light_maps`, or None where :meth:`Shader.reads_light_maps` says the class
+does not read them for that profile), and implements:
 
 * :meth:`Shader.delta` (abstract): the change over a box around the imprint;
 * :meth:`Shader.parts` (default: ``delta``'s box, to be blurred by the camera): the change as several
@@ -56,6 +57,12 @@ class Shader(ABC):
     """A shading backend (see the module docstring). ``name``: the backend's name in reports."""
 
     name: str = ""
+
+    @classmethod
+    def reads_light_maps(cls, profile) -> bool:
+        """Whether this class reads the light maps it is built with for ``profile`` (else it is given None:
+        they are 41 MB at 960x720 with three LEDs). Default: it does."""
+        return True
 
     @abstractmethod
     def delta(self, depth_mm: np.ndarray, margin_px: int = 0) -> tuple[Roi, np.ndarray] | None:

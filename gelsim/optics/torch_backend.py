@@ -100,6 +100,10 @@ class TorchShader(Shader):
 
     name = "torch"
 
+    @classmethod
+    def reads_light_maps(cls, profile) -> bool:
+        return profile.shading.model != "lut"
+
     def __init__(self, profile, maps, device=None):
         self.profile = profile
         self.device = resolve_device(device) if not hasattr(device, "type") else device

@@ -83,15 +83,24 @@ def test_bad_input_exits_2_with_one_line(capsys, argv):
     assert err.startswith("gelsim: error:") and "\n" not in err
 
 
-def test_an_overflowing_force_is_a_bottomed_press_said_on_stderr(capsys):
-    """`--force-n 1e39` overflowed float32 with a RuntimeWarning and said nothing (#42)."""
+def test_an_overflowing_force_is_refused_and_a_bottomed_press_said_on_stderr(capsys):
+    """`--force-n 1e39` overflowed float32 with a RuntimeWarning and said nothing (#42); 1e20 printed a garbled
+    table with exit 0 (#50). More than the gel can carry at all is one line and status 2 (Hertz's figures
+    for it describe nothing); a force that bottoms the pad out is pressed to its travel, said on stderr."""
     import warnings
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         rc = main(["press", "--indenter", "sphere", "--diameter-mm", "4", "--force-n", "1e39", "--fidelity", "fast",
                    "--resolution-px", "320", "--json"])
+        cap = capsys.readouterr()
+        assert rc == 2 and cap.out == "" and cap.err.count("\n") == 1
+        assert "is more than the vitac gel can carry" in cap.err and "give a smaller force" in cap.err
+        rc = main(["press", "--indenter", "sphere", "--diameter-mm", "4", "--force-n", "200", "--fidelity", "fast",
+                   "--resolution-px", "320"])
     cap = capsys.readouterr()
-    rep = json.loads(cap.out)
-    assert rc == 0 and rep["bottomed_out"] and 0 < rep["gel_force_n"] < 1e3
+    assert rc == 0 and "BOTTOMED OUT" in cap.out
     assert cap.err.startswith("gelsim press: warning: the gel bottomed out") and cap.err.count("\n") == 1
+    # the table's columns stay apart whatever the figures' size
+    rows = [line for line in cap.out.splitlines() if line.startswith(("contact radius", "indentation"))]
+    assert len(rows) == 2 and all(len([float(v) for v in r[22:].split()]) == 3 for r in rows), rows

@@ -71,10 +71,24 @@ def test_parse_range_rejects(text, msg):
         parse_range(text, "--frames")
 
 
-@pytest.mark.parametrize("text", ["320", "axb", "8x8"])
+@pytest.mark.parametrize("text", ["320", "axb", "0x0", "-5x10"])
 def test_parse_resolution_rejects(text):
     with pytest.raises(GelsimError, match="--resolution"):
         parse_resolution(text)
+
+
+def test_a_resolution_too_small_names_the_smallest_that_works():
+    """`--resolution 0x0` said "use at least 16x16", and 16x16 was then refused for its pixel size (#50): the
+    profile names its own range, and the smallest size in it works."""
+    from gelsim.sensor import load_profile
+
+    vitac = load_profile("vitac")
+    (w, h), _ = vitac.resolution_range()
+    for size in ((16, 16), (w - 1, h), (w, h - 1)):
+        with pytest.raises(GelsimError, match=rf"out of range for vitac; give {w}x{h} to 8192x8192 px"):
+            vitac.with_resolution(*size)
+    small = vitac.with_resolution(w, h)
+    assert small.shape == (h, w) and small.image.mm_per_px <= 1.0
 
 
 def test_small_datasets_still_contain_every_action():

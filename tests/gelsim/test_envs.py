@@ -80,3 +80,21 @@ def test_scripted_grasp_lifts_and_feels_the_object():
 def test_unknown_object_is_an_error():
     with pytest.raises(GelsimError, match="unknown object 'mug'"):
         GraspEnv(object="mug")
+
+
+def test_the_readme_loop_runs_in_a_fresh_interpreter():
+    """`gym.make("gelsim/Grasp-v0")` in a fresh interpreter failed with NamespaceNotFound (#50). Gymnasium
+    1.x reads no entry-point plugins, so the README's example names the module in the id, which Gymnasium
+    imports on the way: run as written, in a new process that never imports gelsim itself."""
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    (code,) = [b for b in re.findall(r"```python\n(.*?)```", readme, flags=re.S) if "gymnasium" in b]
+    assert not re.search(r"^\s*(import|from) gelsim", code, flags=re.M) and "env.close()" in code
+    probe = code + "\nimport sys\nprint(both_fingers.shape, 'gelsim.envs' in sys.modules)\n"
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split("\n")[-2] == "(48, 128, 3) True"

@@ -1,4 +1,4 @@
-"""gelsim.nuisance.camera: the webcam's auto-exposure and auto white balance, and their gain kernels."""
+"""gelsim.nuisance.camera: the webcam's start-up (auto-exposure and white balance settling), and the gain kernels."""
 import math
 
 import numpy as np
@@ -6,79 +6,68 @@ import pytest
 import torch
 
 from gelsim.errors import GelsimError
-from gelsim.nuisance import (camera_start, camera_step, draw_exposure_start, draw_white_balance_start,
-                             exposure_gains, exposure_start, exposure_step, load_nuisance, metered_ratios, stage_rng,
-                             white_balance_gains)
+from gelsim.nuisance import draw_startup, load_nuisance, settling, stage_rng, startup_gains
 from gelsim.optics.composite import BatchInput, CameraGains, FrameInput, check_gains
 
 M = load_nuisance()
-EXP, WB = M.stages.exposure, M.stages.white_balance
+SU = M.stages.startup
 
 
-def test_flat_scene_stays_dark_for_the_exposure_delay_then_settles():
-    """Docstring: frame 0's exposure applies until the first metered exposure lands delay_frames later;
-    with the flat gel the start-up jump brings it to the settled exposure (within stable_region) from then on."""
-    g = exposure_gains(np.ones(30), 0.07, EXP)
-    assert np.all(g[:EXP.delay_frames] == 0.07)
-    assert np.all(np.abs(g[EXP.delay_frames:] - 1.0) <= EXP.stable_region)
+def test_exposure_holds_for_the_delay_then_ramps_and_settles_by_the_settle_frame():
+    g = settling(0.05, 2, 8, 0.02, np.arange(20))
+    assert np.all(g[:2] == 0.05)                                    # the first correction lands 2 frames late
+    assert np.all(np.diff(g[1:9]) > 0)                              # a ramp: every frame brighter, no jump to 1
+    assert g[3] < 0.5 < g[6]                                        # several frames of it, not a step
+    assert abs(math.log(g[8])) == pytest.approx(math.log1p(0.02), rel=1e-9)   # within the stable region at frame 8
+    assert np.all(g[8:] == g[8])                                    # and the controller stops there
+    assert settling(0.05, 2, 8, 0.02, np.arange(7))[6] < 1 / 1.02   # not before
 
 
-def test_after_start_up_a_scene_change_is_corrected_at_the_stated_speeds():
-    s = EXP.startup_frames + 3                      # the scene darkens once start-up is over
-    near = exposure_gains([1.0] * s + [0.9] * 12, 1.0, EXP)
-    far = exposure_gains([1.0] * s + [0.5] * 20, 1.0, EXP)
-    d = EXP.delay_frames
-    assert np.all(near[:s + d] == 1.0) and np.all(far[:s + d] == 1.0)      # the change lands delay frames later
-    t_near, t_far = 1 / 0.9, 2.0
-    k = math.sqrt(EXP.speed)                                              # within near_band of the target
-    assert near[s + d] == pytest.approx(k * t_near + (1 - k) * 1.0, rel=1e-12)
-    assert far[s + d] == pytest.approx(EXP.speed * t_far + (1 - EXP.speed), rel=1e-12)   # outside it
-    assert abs(near[-1] / t_near - 1) <= EXP.stable_region and abs(far[-1] / t_far - 1) <= EXP.stable_region
-    assert np.all(np.diff(far[s:]) >= 0)                                 # approaches without overshoot
+def test_a_start_inside_the_stable_region_never_moves_and_channels_ramp_on_their_own():
+    assert np.all(settling(1.01, 1, 4, 0.02, np.arange(10)) == 1.01)
+    g = settling(np.array([1.15, 1.0, 0.9]), 1, 4, 0.02, np.arange(8))
+    assert g.shape == (8, 3) and np.all(g[:, 1] == 1.0)
+    assert np.all(np.diff(g[:5, 0]) < 0) and np.all(np.diff(g[:5, 2]) > 0)
+    assert np.all(np.abs(np.log(g[4:])) <= math.log1p(0.02) + 1e-12)
 
 
-def test_no_change_inside_the_stable_region():
-    g = exposure_gains([1.0] * 15 + [1 / 1.015] * 10, 1.0, EXP)
-    assert np.all(g == 1.0)
+def test_the_share_of_recordings_that_catch_the_start_up_grows_with_severity_as_supersets():
+    seeds = range(2000)
+    caught = {s: {k for k in seeds if draw_startup(stage_rng(k, "startup"), SU, s).age_frames is not None}
+              for s in (0.0, 0.5, 1.0, 2.0, 4.0)}
+    assert not caught[0.0]
+    for lo, hi in ((0.5, 1.0), (1.0, 2.0), (2.0, 4.0)):
+        assert caught[lo] <= caught[hi] and len(caught[lo]) < len(caught[hi])
+    # about severity x restart_share of them (binomial, 2000 draws: within 4 standard errors)
+    for s in (1.0, 4.0):
+        p = min(1.0, s * SU.restart_share)
+        assert abs(len(caught[s]) / 2000 - p) < 4 * math.sqrt(p * (1 - p) / 2000)
+    # a caught recording's start-up does not depend on the severity: no frame gets darker at a higher one
+    k = min(caught[1.0])
+    g1 = startup_gains(draw_startup(stage_rng(k, "startup"), SU, 1.0), 30, SU)
+    g4 = startup_gains(draw_startup(stage_rng(k, "startup"), SU, 4.0), 30, SU)
+    assert np.array_equal(g1, g4)
 
 
-def test_stepping_equals_the_whole_sequence():
-    rng = np.random.default_rng(3)
-    lumas = rng.uniform(0.7, 1.3, 40)
-    state, out = exposure_start(0.3, EXP), []
-    for v in lumas:
-        gain, state = exposure_step(state, float(v), EXP)
-        out.append(gain)
-    assert np.array_equal(np.array(out), exposure_gains(lumas, 0.3, EXP))
-
-
-def test_exposure_start_error_grows_with_severity_and_is_off_at_zero():
-    starts = [draw_exposure_start(stage_rng(11, "exposure"), EXP, s) for s in (0.0, 0.5, 1.0, 2.0, 4.0)]
-    assert starts[0] == 1.0
-    assert all(a > b for a, b in zip(starts, starts[1:-1]))
-    assert starts[-1] >= 0.0 and starts[-1] <= starts[-2]
-    r = draw_exposure_start(stage_rng(11, "exposure"), EXP, 1.0)
-    assert EXP.start_ratio[0] <= r <= EXP.start_ratio[1]
-
-
-def test_white_balance_start_is_bounded_and_settles_then_follows_the_slow_rule():
-    for seed in range(50):
-        g = draw_white_balance_start(stage_rng(seed, "white_balance"), WB, 1.0)
-        assert g[1] == 1.0 and np.all(np.abs(g - 1) <= WB.start_offset_max)
-    assert np.all(draw_white_balance_start(stage_rng(0, "white_balance"), WB, 0.0) == 1.0)
-    start = np.array([1.1, 1.0, 0.9])
-    T, shift = 40, 15                                      # the scene turns redder after start-up
-    ratios = np.ones((T, 3))
-    ratios[shift:, 0] = 1.2
-    g = white_balance_gains(ratios, start, WB)
-    d = WB.delay_frames
-    assert np.all(g[:d] == start)
-    assert np.allclose(g[d:shift + d], 1.0)                # start-up frames jump to the flat gel's balance
-    first = WB.startup_frames + WB.period_frames * math.ceil((shift - WB.startup_frames) / WB.period_frames)
-    assert np.allclose(g[shift + d:first + d], 1.0)        # nothing until the next update
-    assert g[first + d, 0] == pytest.approx(WB.speed * (1 / 1.2) + (1 - WB.speed), rel=1e-12)
-    assert g[first + d + WB.period_frames, 0] < g[first + d, 0]
-    assert np.all(g[:, 1] == 1.0)
+def test_startup_gains_follow_the_stream_age_and_stay_in_the_sources_ranges():
+    restart = M.stages_for("webcam-restart").startup
+    assert restart.restart_share == 1.0
+    lows = []
+    for k in range(200):
+        s = draw_startup(stage_rng(k, "startup"), restart, 1.0)
+        assert s.age_frames is not None and restart.preroll_frames[0] <= s.age_frames <= restart.preroll_frames[1]
+        g = startup_gains(s, 30, restart)
+        assert g.shape == (30, 3) and np.all(g > 0)
+        if s.age_frames == 0:
+            lows.append(g[0, 1])
+            assert restart.exposure_start[0] <= g[0, 1] <= restart.exposure_start[1]
+        # settled (within the stable region of both controllers, so within about 4%) by the last settle frame
+        last = max(s.exposure_settle_frames, s.white_balance_settle_frames) - s.age_frames
+        if last < 30:
+            assert np.all(np.abs(g[max(last, 0):] - 1.0) <= 1.02 ** 2 - 1 + 1e-9)
+    assert lows and min(lows) >= restart.exposure_start[0]
+    not_caught = draw_startup(stage_rng(1, "startup"), SU, 0.0)
+    assert not_caught.age_frames is None and startup_gains(not_caught, 30, SU) is None
 
 
 def test_the_gain_kernels_numpy_and_torch_give_the_same_bits_for_any_batch():
@@ -109,50 +98,16 @@ def test_the_gain_kernels_numpy_and_torch_give_the_same_bits_for_any_batch():
     lambda: check_gains([1, -1, 1]),
     lambda: check_gains([1, 1]),
     lambda: CameraGains(None).apply_torch(torch.zeros(2, 3, 4, 4), BatchInput(None, None, [[1, 1, 1], [1, 1]])),
-    lambda: exposure_gains([1.0, 0.0], 0.5, EXP),
-    lambda: exposure_gains([1.0, float("nan")], 0.5, EXP),
-    lambda: exposure_start(-0.1, EXP),
-    lambda: white_balance_gains(np.ones((3, 2)), [1, 1, 1], WB),
-    lambda: white_balance_gains(np.ones((3, 3)), [1, 0, 1], WB),
-    lambda: metered_ratios(np.ones((4, 4, 3)), [100, 0, 100]),
-    lambda: stage_rng(-1, "exposure"),
+    lambda: settling(0.0, 2, 8, 0.02, np.arange(3)),
+    lambda: settling(float("nan"), 2, 8, 0.02, np.arange(3)),
+    lambda: settling(0.5, 8, 8, 0.02, np.arange(3)),
+    lambda: settling(0.5, 2, 8, 0.02, np.array([-1, 0])),
+    lambda: settling(0.5, 2, 8, 0.02, np.array([0.5])),
+    lambda: draw_startup(stage_rng(0, "startup"), SU, 5.0),
+    lambda: stage_rng(-1, "startup"),
     lambda: stage_rng(0, "ambient"),
 ])
 def test_bad_values_are_refused_in_one_line(call):
     with pytest.raises(GelsimError) as e:
         call()
     assert "\n" not in str(e.value)
-
-
-def test_camera_state_off_draws_nothing_and_changes_nothing():
-    frame = np.full((8, 8, 3), 120.0, np.float32)
-    state = camera_start(5, {}, M.stages)
-    gains, after = camera_step(state, frame, [120.0, 120.0, 120.0], M.stages)
-    assert np.array_equal(gains, np.ones(3)) and after == state
-
-
-def test_camera_gains_are_seeded_and_each_stage_keeps_its_draws():
-    bg = np.array([118.0, 124.0, 128.0])
-    frames = [np.broadcast_to(bg * f, (6, 6, 3)).astype(np.float32) for f in np.linspace(1.0, 0.8, 20)]
-
-    def run(sev):
-        state, out = camera_start(42, sev, M.stages), []
-        for f in frames:
-            g, state = camera_step(state, f, bg, M.stages)
-            out.append(g)
-        return np.array(out)
-
-    both = run(M.level("camera"))
-    assert np.array_equal(both, run(M.level("camera")))                     # same seed, same gains
-    exp_only = run({"exposure": 1.0})
-    wb_only = run({"white_balance": 1.0})
-    assert np.allclose(both, exp_only * wb_only, rtol=1e-12)               # independent draws, product of gains
-    assert not np.array_equal(run(M.level("camera")), camera_run_other_seed(frames, bg))
-
-
-def camera_run_other_seed(frames, bg):
-    state, out = camera_start(43, M.level("camera"), M.stages), []
-    for f in frames:
-        g, state = camera_step(state, f, bg, M.stages)
-        out.append(g)
-    return np.array(out)

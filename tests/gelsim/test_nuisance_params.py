@@ -5,17 +5,27 @@ from gelsim.errors import GelsimError
 from gelsim.nuisance import MAX_SEVERITY, NUISANCE_FILE, STAGES, check_severity, load_nuisance
 
 
-def test_default_file_has_the_three_levels_and_none_is_empty():
+def test_default_file_has_the_four_levels_and_none_is_empty():
     m = load_nuisance()
-    assert set(m.levels) == {"none", "camera", "handheld"}
+    assert set(m.levels) == {"none", "camera", "handheld", "webcam-restart"}
     assert m.level("none") == {}
-    assert m.level("camera") == {"exposure": 1.0, "white_balance": 1.0}
+    assert m.level("camera") == {"startup": 1.0}
     assert list(m.level("handheld")) == [s for s in STAGES if s in m.level("handheld")]   # the stage order
-    assert m.level("handheld") == {"fibres": 1.0, "exposure": 1.0, "white_balance": 1.0}
-    assert m.level("handheld", severity=2.5) == {"fibres": 2.5, "exposure": 2.5, "white_balance": 2.5}
+    assert m.level("handheld") == {"fibres": 1.0, "startup": 1.0}
+    assert m.level("handheld", severity=2.5) == {"fibres": 2.5, "startup": 2.5}
     assert m.level("handheld", severity=0) == {}
-    assert m.stages.exposure.delay_frames == 2 and m.stages.exposure.speed == 0.2
+    assert m.stages.startup.exposure_delay_frames == 2 and m.stages.startup.exposure_settle_frames == (6, 10)
     assert m.stages.fibres.diameter_mm == (0.015, 0.035)
+
+
+def test_a_levels_parameters_replace_the_files_for_that_level_only():
+    m = load_nuisance()
+    assert m.stages_for("webcam-restart").startup.restart_share == 1.0
+    assert m.stages_for("camera") == m.stages and m.stages_for("handheld") == m.stages
+    assert m.stages.startup.restart_share < 0.1
+    assert m.level("webcam-restart") == m.level("camera")
+    with pytest.raises(GelsimError, match="unknown nuisance level"):
+        m.stages_for("studio")
 
 
 @pytest.mark.parametrize("bad", [-0.1, MAX_SEVERITY + 0.01, float("nan"), float("inf"), "1", True])
@@ -28,20 +38,26 @@ def test_severity_out_of_range_is_refused_in_one_line(bad):
 
 
 def test_unknown_level_is_refused():
-    with pytest.raises(GelsimError, match="unknown nuisance level 'studio'; choose one of none, camera, handheld"):
+    with pytest.raises(GelsimError, match="unknown nuisance level 'studio'; choose one of none, camera, handheld, webcam-restart"):
         load_nuisance().level("studio")
 
 
 @pytest.mark.parametrize("edit, match", [
     (("[levels.camera]\n", "[levels.camera]\nambient = 1.0\n"), "unknown stage"),
     (("[levels.none]\n", "[levels.none]\nfibres = 0.5\n"), "switch every stage off"),
-    (("exposure = 1.0\nwhite_balance = 1.0\n\n[levels.handheld]", "exposure = 9.0\nwhite_balance = 1.0\n\n[levels.handheld]"),
-     "from 0"),
-    (("start_ratio = [0.05, 0.6]", "start_ratio = [0.6, 0.05]"), "start_ratio"),
+    (("[levels.camera]\n# the webcam's start-up, where ViTac's recordings can have caught it (the first touch of a cloth)\nstartup = 1.0",
+      "[levels.camera]\nstartup = 9.0"), "from 0"),
+    (("exposure_start = [0.05, 0.6]", "exposure_start = [0.6, 0.05]"), "exposure_start"),
     (("length_mean_mm = 1.5", "length_mean_mm = 1.5\nbogus_mm = 2.0"), "bogus_mm"),
-    (("speed = 0.2", "speed = 0.0"), "speed"),
-    (("delay_frames = 2", "delay_frames = 0"), "delay_frames"),
-    (("start_offset_max = 0.15", "start_offset_max = 0.3"), "start_offset_max"),
+    (("restart_share = 0.033", "restart_share = 1.5"), "restart_share"),
+    (("exposure_settle_frames = [6, 10]", "exposure_settle_frames = [2, 10]"), "exposure_settle_frames"),
+    (("exposure_settle_frames = [6, 10]", "exposure_settle_frames = [6.5, 10]"), "expected an integer"),
+    (("white_balance_start_max = 0.15", "white_balance_start_max = 1.0"), "white_balance_start_max"),
+    (("[levels.webcam-restart.params.startup]\nrestart_share = 1.0", "[levels.webcam-restart.params.startup]\nrestart_share = 2.0"),
+     "webcam-restart.params.startup.restart_share"),
+    (("[levels.webcam-restart.params.startup]\nrestart_share = 1.0", "[levels.webcam-restart.params.startup]\nshare = 1.0"),
+     "unknown parameter"),
+    (("[levels.webcam-restart.params.startup]", "[levels.webcam-restart.params.flicker]"), "unknown stage"),
     (("[levels.none]\n", "[shades]\nx = 1\n[levels.none]\n"), "unknown table 'shades'"),
 ])
 def test_bad_files_are_refused_naming_the_key(tmp_path, edit, match):

@@ -148,3 +148,15 @@ def test_one_object_carries_a_frames_inputs(small):
     np.testing.assert_array_equal(r.render_input(C.OpticsInput(d, corners, g, seed=7)),
                                   r.render(d, corners, seed=7, gains=g))
     np.testing.assert_array_equal(r.render_input(C.OpticsInput(d, None, noise=False)), r.render(d, noise=False))
+
+
+def test_light_maps_are_made_only_for_a_shader_that_reads_them():
+    """A calibrated table's renderer never builds the LEDs' light maps (41 MB of a dataset worker's peak at
+    960x720); a Phong renderer gets them."""
+    from gelsim.sensor import load_profile
+
+    lut = Renderer(load_profile("vitac").with_resolution(64, 48))
+    assert lut.shader.name == "lut" and "maps" not in vars(lut.optics)
+    assert len(lut.optics.maps) == len(lut.profile.lights)          # still there when asked for
+    phong = Renderer(load_profile("digit").with_resolution(64, 48))
+    assert "maps" in vars(phong.optics) and phong.shader.maps is phong.optics.maps

@@ -37,8 +37,12 @@ def test_generate_writes_the_statistics_with_the_previews(tiny):
 
 
 def test_texture_sheet_shows_each_fabrics_frame_centre_at_its_own_pixels(tiny):
+    """Each fabric's peak-force frame at its own pixels, and below it the same minus the flat gel, contrast
+    stretched (#50: at 320x240 the frames alone were grey and hazy)."""
     import cv2
 
+    from gelsim.annotate import stretched_difference
+    from gelsim.dataset import dataset_flat_frame
     from gelsim.video import read_video
 
     m = load_manifest(tiny)
@@ -47,14 +51,54 @@ def test_texture_sheet_shows_each_fabrics_frame_centre_at_its_own_pixels(tiny):
     for s in m["sequences"]:
         firsts.setdefault(s["fabric_id"], s)
     th, tw = 72, 96   # frames smaller than the 160 x 120 tile are shown whole
-    assert sheet.shape == (th, tw * len(firsts), 3)
+    assert sheet.shape == (2 * th, tw * len(firsts), 3)
+    flat = dataset_flat_frame(m)
+    below_label = slice(20, th)   # the caption's lines end above row 20
     for i, s in enumerate(firsts.values()):
         with np.load(tiny / s["labels"]) as z:
             k = int(np.argmax(z["normal_force_n"]))
         frame = read_video(tiny / s["video"])[k]
-        tile = sheet[:, i * tw:(i + 1) * tw]
-        below_label = slice(20, th)   # the label's two outlined lines end above row 20
+        tile = sheet[:th, i * tw:(i + 1) * tw]
         assert np.array_equal(tile[below_label], frame[below_label])
+        diff, gain = stretched_difference(frame, flat)
+        assert gain > 1 and np.array_equal(sheet[th:, i * tw:(i + 1) * tw][below_label], diff[below_label])
+
+
+def test_the_flat_gel_is_the_datasets_sensor_before_contact(tiny):
+    """The frames before contact differ from the rendered flat gel by the camera's noise and the codec's
+    error only: the difference panels show what the contact changed, not another sensor."""
+    from gelsim.dataset import dataset_flat_frame
+    from gelsim.video import read_video
+
+    m = load_manifest(tiny)
+    s = next(s for s in m["sequences"] if s["contact_onset"] >= 2)
+    frames = read_video(tiny / s["video"]).astype(float)
+    flat = dataset_flat_frame(m, s).astype(float)
+    before, contact = np.abs(frames[0] - flat), np.abs(frames[-1] - flat)
+    assert before.mean() < 3 and np.percentile(before, 99) < 12, (before.mean(), np.percentile(before, 99))
+    other = dataset_flat_frame({**m, "options": {**m["options"], "seed": m["options"]["seed"] + 1}}, s)
+    assert np.abs(frames[0] - other).mean() > before.mean() + 1      # another sensor unit's gel is not it
+    assert contact.max() > 2 * np.percentile(before, 99)
+
+
+def test_captions_have_no_ghost_letters():
+    """The outline was the text drawn thicker, whose wider glyph advances ran past the white text: "poplin"
+    read "poplinn" (#50; 5 px past the white at this size). The outline ends within 3 px of the white glyphs."""
+    from gelsim.annotate import caption
+
+    img = caption(np.full((40, 200, 3), 128, np.uint8), ["poplin"], 0.5)
+    white = np.flatnonzero((img == 255).all(axis=2).any(axis=0))
+    dark = np.flatnonzero((img < 40).all(axis=2).any(axis=0))
+    assert white.size and dark.size and dark.max() <= white.max() + 3 and dark.min() >= white.min() - 3
+
+
+def test_action_strips_show_each_frame_minus_the_flat_gel(tiny):
+    import cv2
+
+    strip = cv2.imread(str(tiny / "previews" / "press.png"))
+    assert strip.shape == (2 * 180, 6 * 240, 3)       # six 240 px frames, their differences below
+    below = strip[180 + 20:, :240].astype(int)
+    assert below.std() > 3                              # stretched, not the flat grey of a few DN
 
 
 def test_centre_crop_takes_the_middle_pixels():
@@ -129,3 +173,76 @@ def test_the_first_look_shows_what_the_contact_changed(tiny):
     flat = np.full((4, 4, 3), 100, np.uint8)
     img, gain = stretched_difference(flat, flat)
     assert (img == 128).all() and gain == 127.0                     # nothing changed: mid-grey, no division by 0
+
+
+def test_a_nuisance_level_shows_in_the_first_look(tiny, tmp_path):
+    """The handheld dataset's first_look.png was byte-identical to the clean one (#50): with a nuisance level
+    the sheet ends with a sequence's first frames as the dataset holds them (the webcam settling) and minus
+    the flat gel."""
+    import cv2
+
+    from gelsim.firstlook import NUISANCE_FRAMES, RESOLUTION
+
+    out = tmp_path / "handheld"
+    assert main(["generate", "--out", str(out), *TINY, "--nuisance", "handheld"]) == 0
+    clean = cv2.imread(str(tiny / "previews" / "first_look.png"))
+    noisy = cv2.imread(str(out / "previews" / "first_look.png"))
+    w = RESOLUTION[0]
+    tile_h = round(72 * (w // NUISANCE_FRAMES) / 96)
+    assert noisy.shape == (clean.shape[0] + 2 * tile_h, w, 3)
+    assert np.array_equal(noisy[:clean.shape[0]], clean)          # the fabrics' rows are the same
+    assert not np.array_equal(noisy[clean.shape[0]:clean.shape[0] + tile_h],
+                              noisy[clean.shape[0] + tile_h:])         # frames above, differences below
+
+
+def test_the_first_look_shows_a_sequence_its_nuisance_record_says_was_touched(tiny):
+    """A level may touch few recordings: the first look's nuisance rows show the sequence whose per-frame
+    record changes most over its first frames."""
+    from gelsim.annotate import tile
+    from gelsim.dataset import dataset_flat_frame
+    from gelsim.firstlook import NUISANCE_FRAMES, RESOLUTION, nuisance_rows, nuisance_shown
+    from gelsim.video import read_video
+
+    m = load_manifest(tiny)
+    assert nuisance_rows(tiny, m, lambda s: dataset_flat_frame(m, s)) is None          # no level, no rows
+    noisy = {**m, "options": {**m["options"], "nuisance": "handheld"}}
+    seq = m["sequences"][-1]
+    record = tiny / seq["nuisance"]                  # every dataset has one; this one's says nothing was applied
+    kept = record.read_bytes()
+    try:
+        t = seq["num_frames"]
+        with record.open("wb") as f:
+            np.savez(f, gains=np.linspace(0.3, 1.0, 3 * t).reshape(t, 3).astype(np.float32),
+                     fibres_touching=np.zeros(t, np.int32))
+        assert nuisance_shown(tiny, seq) == ["gains"] and nuisance_shown(tiny, m["sequences"][0]) == []
+        rows = nuisance_rows(tiny, noisy, lambda s: dataset_flat_frame(m, s))
+        width = RESOLUTION[0] // NUISANCE_FRAMES
+        expected = tile(read_video(tiny / seq["video"])[NUISANCE_FRAMES - 1], width)
+        last = rows[:expected.shape[0], (NUISANCE_FRAMES - 1) * width:]
+        assert np.array_equal(last[40:], expected[40:])                # below its caption: that sequence's frame
+    finally:
+        record.write_bytes(kept)
+
+
+def test_the_first_look_is_rendered_once_per_machine(tmp_path, monkeypatch):
+    """Every `gelsim generate` rendered the first look's four 960x720 fabrics anew (4-8 s of a 6-15 s quick
+    run): they are kept in the user cache, named by the code that renders them, and read back."""
+    from gelsim import firstlook
+
+    monkeypatch.setenv("GELSIM_CACHE", str(tmp_path))
+    firstlook._cached_looks.cache_clear()
+    fabrics = firstlook.FABRICS[:1]
+    first = firstlook._cached_looks(fabrics, "vitac")
+    path = firstlook.looks_cache_path(fabrics, "vitac")
+    assert path.is_file() and path.is_relative_to(tmp_path)
+    firstlook._cached_looks.cache_clear()
+
+    def fail(*args, **kwargs):
+        raise AssertionError("rendered again")
+
+    monkeypatch.setattr(firstlook, "first_look_frames", fail)
+    again = firstlook._cached_looks(fabrics, "vitac")
+    assert [sorted(a) for a in again] == [sorted(a) for a in first]
+    for a, b in zip(again, first):
+        assert all(np.array_equal(a[k], b[k]) if isinstance(a[k], np.ndarray) else a[k] == b[k] for k in a)
+    firstlook._cached_looks.cache_clear()

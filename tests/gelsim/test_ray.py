@@ -98,7 +98,7 @@ def test_ray_not_installed_is_one_line_and_writes_nothing(tmp_path, capsys, monk
     monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` meets where Ray is not installed
     out = tmp_path / "ds"
     assert main(["generate", "--out", str(out), *CONFIG, "--ray"]) == 2
-    _one_line_error(capsys, "make ray", "pip install gelsim[ray]")
+    _one_line_error(capsys, "make ray", "pip install ray==2.60.0")
     assert not out.exists()
 
 

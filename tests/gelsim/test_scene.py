@@ -199,6 +199,44 @@ def test_tilt_plane_is_numpys_two_passes_exactly():
     assert np.array_equal(out, ref)
 
 
+@pytest.mark.parametrize("w", [960, 943, 12, 7])
+def test_shifted_sample_is_opencvs_filter_and_numpys_fixes(w):
+    """The shifted sample's one compiled pass gives what OpenCV's 2x2 filter2D, numpy's redone last row and
+    column and the tilt plane gave (the frames of the datasets made before it, byte for byte), in the vector
+    loop's columns and in its scalar tail (w = 943: 936 columns in 8-lane blocks, then 6)."""
+    import cv2
+
+    from llvmlite.binding import get_host_cpu_features
+
+    from gelsim.scene import _add_plane, _shifted, _tilt_plane
+
+    features = get_host_cpu_features()
+    fused = bool(features.get("avx2") and features.get("fma"))     # OpenCV's AVX2 loop, as on this project's VM
+    rng = np.random.default_rng(w)
+    src = rng.random((60, w + 30), dtype=np.float32) * np.float32(2.5)
+    h = 41
+    for tx, ty, r0, c0 in ((3.37, 5.81, 0, 0), (10.02, 0.5, 4, 9), (0.0, 0.0, 2, 3)):
+        plane = _tilt_plane((1.3, -0.7), c0, c0 + w, r0, r0 + h, (w - 1) / 2.0, 20.0, 0.0208)
+        got = _shifted(src, tx, ty, h, w, r0, c0, plane)
+        x0, y0 = math.floor(tx), math.floor(ty)
+        fx, fy = np.float32(tx - x0), np.float32(ty - y0)
+        one = np.float32(1.0)
+        k = np.array([[(one - fx) * (one - fy), fx * (one - fy)], [(one - fx) * fy, fx * fy]], np.float32)
+        a = src[y0 + r0:y0 + r0 + h + 1, x0 + c0:x0 + c0 + w + 1]
+        ref = cv2.filter2D(a[:h, :w], -1, k, anchor=(0, 0), borderType=cv2.BORDER_REPLICATE)
+        ref[:, w - 1] = k[0, 0] * a[:h, w - 1] + k[0, 1] * a[:h, w] + k[1, 0] * a[1:, w - 1] + k[1, 1] * a[1:, w]
+        ref[h - 1] = k[0, 0] * a[h - 1, :w] + k[0, 1] * a[h - 1, 1:] + k[1, 0] * a[h, :w] + k[1, 1] * a[h, 1:]
+        flat = _shifted(src, tx, ty, h, w, r0, c0)
+        tilted = ref.copy()
+        _add_plane(tilted, *plane)
+        assert not np.array_equal(tilted, ref)                          # the plane is seen
+        for mine, theirs in ((flat, ref), (got, tilted)):
+            if fused:
+                np.testing.assert_array_equal(mine, theirs)
+            else:   # (OpenCV's vector code without fused multiply-adds rounds each product)
+                np.testing.assert_allclose(mine, theirs, rtol=0, atol=4 * np.finfo(np.float32).eps * 3.0)
+
+
 def test_press_properties_carry_the_corduroys_valley_and_nothing_for_others():
     """What press() takes of an object: a corduroy's gap between wales as its envelope valley, None for
     other fabrics and rigid indenters, and None for a user's object that does not define it."""

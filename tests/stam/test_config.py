@@ -57,7 +57,7 @@ def test_preset_file_errors(tmp_path):
         (tmp_path / name).write_text(text)
         with pytest.raises(GelsimError, match=match):
             load_preset(str(tmp_path / name))
-    with pytest.raises(GelsimError, match="unknown preset 'gpu9'"):
+    with pytest.raises(GelsimError, match="unknown config 'gpu9'"):
         load_preset("gpu9")
 
 
@@ -92,7 +92,7 @@ def test_train_without_preset_picks_by_cuda_and_says_so(synth, tmp_path, capsys,
                                                  if k not in ("data", "out", "preset", "pretrained", "progress")}}
     assert res["config"]["pretrained"] == str(tmp_path / "r" / "pretrain" / "backbone.pt")
     note = cap.err.strip().splitlines()
-    assert len(note) == 1 and f"using the {expected} preset" in note[0]
+    assert len(note) == 1 and f"using the {expected} config" in note[0]
     # An explicit preset is used as given, silently.
     assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "r"), "--dry-run", "--json",
                      "--preset", "paper" if expected == "cpu" else "cpu"]) == 0
@@ -164,7 +164,7 @@ def test_the_first_line_describes_the_run_not_the_preset(synth, tmp_path, capsys
     assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "r"), "--dry-run", "--json",
                      "--pretrained", "none", "--epochs", "1", "--model", "cnn", "--frames", "3"]) == 0
     first = capsys.readouterr().err.splitlines()[0]
-    assert "using the cpu preset" in first
+    assert "using the cpu config" in first
     assert "cnn, windows of 3 frames" in first and "backbone from random weights" in first
     assert "trained for 1 epoch " in first and "pretrained on single frames" not in first
     assert cli.main(["train", "--data", str(synth), "--out", str(tmp_path / "r"), "--dry-run", "--json",

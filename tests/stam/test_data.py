@@ -9,6 +9,7 @@ from stam import cli
 from stam.data import (DEFAULT_ONSET_THRESHOLD, ONSET_DRIFT_FACTOR, SCORE_PERCENTILE, TactileDataset,
                        WindowDataset, change_score, contact_scores, detect_onset, load_manifest, model_input,
                        thumbnails)
+from stam.errors import StamError
 
 
 def _copy_manifest(src, dst, **changes):
@@ -197,11 +198,38 @@ def test_a_video_changed_since_is_not_read_from_the_cache(synth, tmp_path):
     a, b = data.sequences[0], data.sequences[-1]
     old = np.array(data.frames(a, 64))
     shutil.copyfile(b.video, a.video)                   # a new file: another size or modification time
+    _record_checksum(root, a.id)                        # as a dataset rewritten with it says
     fresh = TactileDataset(root, cache_dir=tmp_path / "cache")
     new = np.array(fresh.frames(fresh.sequences[0], 64))
     assert not np.array_equal(new, old)
     np.testing.assert_array_equal(new, np.array(fresh.frames(fresh.sequences[-1], 64)))
     assert np.array_equal(new, np.stack([model_input(f, 64) for f in read_video(b.video)]))
+
+
+def _record_checksum(root, seq_id):
+    """Put the checksum of ``seq_id``'s video as it is now into ``root``'s manifest."""
+    from gelsim.schema import sha256_of
+
+    path = root / "manifest.json"
+    m = json.loads(path.read_text())
+    for s in m["sequences"]:
+        if s["id"] == seq_id:
+            s["sha256"]["video"] = sha256_of(root / s["video"])
+    path.write_text(json.dumps(m))
+
+
+def test_a_video_that_fails_its_checksum_is_named_before_it_is_read(synth, tmp_path):
+    """`stam train` on a dataset with a changed video trained on it without a word (#50): the first read of
+    a video checks it against the manifest, and a mismatch is one line naming the file and the fix."""
+    root = tmp_path / "data"
+    shutil.copytree(synth, root)
+    data = TactileDataset(root, cache_dir=tmp_path / "cache")
+    a, b = data.sequences[0], data.sequences[-1]
+    shutil.copyfile(b.video, a.video)              # decodes fine, but is not the video the manifest lists
+    with pytest.raises(StamError, match=rf"video {a.video} does not match the manifest's checksum.*gelsim verify"):
+        data.frames(a, 64)
+    assert not any((tmp_path / "cache").rglob(f"{a.id}-*.npy"))     # nothing of it cached
+    np.asarray(data.frames(b, 64))                                   # the others read as before
 
 
 def test_crop_keeps_the_centre_at_higher_resolution(synth, tmp_path):

@@ -158,3 +158,27 @@ def test_precontact_cost_with_the_contact_frames_matched():
     assert "Frames before contact, contact frames matched" in text and "over 300 windows of 150 sequences" in text
     # Without onsets (or without both settings) there is no such analysis.
     assert analyse(cells, ["cnn", "stam"], frames, SETTINGS, ids)["precontact"] is None
+
+
+def test_precontact_against_extra_clean_cells():
+    """With noisy n = 2, 4 and the clean setting also at n = 1, 3 (run for this), a window one frame before
+    contact is costed against the clean window of n - 1 frames; Table I shows the extra n, the differences
+    stay over the sweep's n."""
+    n_seq, rng = 120, np.random.default_rng(5)
+    ids = [f"f{i % 12:03d}-s{i:04d}" for i in range(n_seq)]
+    clean = {k: (rng.random(n_seq) < 0.1 * k).astype(int) for k in (1, 2, 3, 4)}
+    cells = []
+    for k, c in clean.items():
+        cells.append({"setting": "clean", "frames": k, "model": "cnn", "seed": 0, "test_ids": ids,
+                      "test_correct": c.tolist()})
+    for n in (2, 4):   # the frame before contact costs exactly the sequences 0..29 that the clean window gets right
+        noisy = clean[n - 1].copy()
+        noisy[:30] = 0
+        cells.append({"setting": "noisy", "frames": n, "model": "cnn", "seed": 0, "test_ids": ids,
+                      "test_correct": noisy.tolist()})
+    a = analyse(cells, ["cnn"], [2, 4], SETTINGS, ids, {t: 1 for t in ids})
+    pc = a["precontact"]
+    assert pc["windows"] == 2 * n_seq and pc["onsets"] == [1]
+    assert pc["models"]["cnn"]["mean"] == pytest.approx(-100 * (clean[1][:30].sum() + clean[3][:30].sum()) / 240)
+    assert set(a["tables"]["clean"]["cnn"]) == {1, 2, 3, 4} and set(a["tables"]["noisy"]["cnn"]) == {2, 4}
+    assert {d["frames"] for d in a["differences"]} == {2, 4, "mean"}

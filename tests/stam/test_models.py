@@ -96,28 +96,37 @@ def test_temporal_attention_is_frame_permutation_equivariant():
     torch.testing.assert_close(ta(x)[:, perm], ta(x[:, perm]), rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.parametrize("name", models.MODEL_NAMES)
+def _keep(b, n):
+    """A keep mask for the oracle: window i keeps its last i % n + 1 frames."""
+    return torch.stack([torch.arange(n) >= n - 1 - i % n for i in range(b)])
+
+
+@pytest.mark.parametrize("name", models.MODELS)
 def test_output_shapes_for_n_2_to_7(name):
     torch.manual_seed(0)
     for n in range(2, 8):
         m = build(name, n, 5, width=0.125, image_size=96).eval()
+        keep = (_keep(2, n),) if m.needs_onset else ()
         with torch.no_grad():
-            assert m(torch.randn(2, n, 3, 96, 96)).shape == (2, 5)
+            assert m(torch.randn(2, n, 3, 96, 96), *keep).shape == (2, 5)
         with pytest.raises(GelsimError):
-            m(torch.randn(2, n + 1, 3, 96, 96))
+            m(torch.randn(2, n + 1, 3, 96, 96), *keep)
 
 
-@pytest.mark.parametrize("name", models.MODEL_NAMES)
+@pytest.mark.parametrize("name", models.MODELS)
 @pytest.mark.parametrize("options", [{}, {"fusion": "mean_features", "combine": "concat", "sa_batchnorm": True}])
 def test_gradients_reach_every_parameter(name, options):
     torch.manual_seed(0)
+    if name in models.VARIANTS and "fusion" in models.VARIANTS[name][1]:
+        options = {k: v for k, v in options.items() if k != "fusion"}   # the variant fixes its fusion
     m = build(name, 3, 4, width=0.125, image_size=96, dropout=0.0, **options)
     if m.temporal is not None:  # at gamma = 0 no gradient reaches q and k, by design: move off it
         with torch.no_grad():
             for t in m.temporal:
                 t.gamma.fill_(0.5)
     m.train()
-    loss = torch.nn.functional.cross_entropy(m(torch.randn(3, 3, 3, 96, 96)), torch.tensor([0, 1, 2]))
+    keep = (_keep(3, 3),) if m.needs_onset else ()
+    loss = torch.nn.functional.cross_entropy(m(torch.randn(3, 3, 3, 96, 96), *keep), torch.tensor([0, 1, 2]))
     loss.backward()
     missing = [k for k, p in m.named_parameters() if p.grad is None or p.grad.abs().sum() == 0]
     assert not missing, missing
@@ -188,3 +197,103 @@ def test_attention_at_conv5_reads_the_map_before_the_last_pool():
     assert st.temporal[0].last_map.shape == (2, 3 * 49, 3 * 49)
     with pytest.raises(GelsimError, match="attention_at"):
         build("cnn", 2, 3, width=0.125, image_size=96, attention_at="fc6")
+
+
+def test_stam_paper_parameter_count_at_paper_size():
+    """The paper's STAM (n = 2, 224 px, 100 classes) has 68.8 M parameters. stam_paper: AlexNet (57,413,540),
+    spatial attention (99), ten modules with q, k, v all 256 -> 256 and a gain (197,377 each), one FC on the
+    flattened attended window, 2 x 256 x 6 x 6 = 18,432 -> 512 (9,437,696), whose 512 outputs join the
+    frames' mean fc7 output in fc8 (512 x 100 more weights; fc8's bias serves both): 68,876,305. Tolerance
+    0.1 M: the count is 0.08 M above the printed 68.8 (68.88 rounds to 68.9; the paper may have truncated,
+    or left the final 51,200 weights out); no reading without such a dense layer comes within 9 M."""
+    alexnet = 57_413_540
+    module = 3 * (256 * 256 + 256) + 1
+    window = 18_432 * 512 + 512
+    count = models.parameter_count("stam_paper", 2, 100)
+    assert count == alexnet + 99 + 10 * module + window + 512 * 100 == 68_876_305
+    assert abs(count - models.PAPER_PARAMS["stam_paper"]) < 0.1e6
+    # the same head without attention, and the FC alone (no per-frame head)
+    assert models.parameter_count("cnn_joint", 2, 100) == alexnet + window + 512 * 100
+    conv = alexnet - (9216 * 4096 + 4096) - (4096 * 4096 + 4096) - (4096 * 100 + 100)
+    assert models.parameter_count("cnn_flatten", 2, 100) == conv + window + 512 * 100 + 100
+    # the window layer grows with n: 7 frames at the cpu preset's size (128 x 3 x 3 per frame)
+    small = dict(width=0.5, image_size=128, hidden=512)
+    assert (models.parameter_count("cnn_joint", 7, 100, **small) - models.parameter_count("cnn", 7, 100, **small)
+            == 7 * 128 * 9 * 512 + 512 + 512 * 100)
+    assert models.parameter_count("oracle", 2, 100) == alexnet   # the oracle's fusion has no weights
+
+
+def _permuted(model, n=4, b=2, keep=None):
+    x = torch.randn(b, n, 3, 96, 96)
+    perm = torch.tensor([2, 0, 3, 1])
+    with torch.no_grad():
+        return model(x, *keep or ()), model(x[:, perm], *keep or ())
+
+
+@pytest.mark.parametrize("name,sees_order", [("cnn", False), ("cnn_mean_features", False), ("cnn_max_features", False),
+                                             ("stam", False), ("cnn_flatten", True), ("cnn_joint", True),
+                                             ("stam_paper", True)])
+def test_which_models_see_the_frames_order(name, sees_order):
+    """Averages and maxima over frames, and the temporal attention (equivariant), give the same logits
+    for any order of the window's frames; a head with weights per frame position does not."""
+    torch.manual_seed(3)
+    m = build(name, 4, 6, width=0.125, image_size=96, hidden=32, window_hidden=16).eval()
+    if m.temporal is not None:
+        with torch.no_grad():
+            for t in m.temporal:
+                t.gamma.fill_(0.7)
+    a, b = _permuted(m)
+    if sees_order:
+        assert (a - b).abs().max() > 1e-4
+    else:
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_oracle_averages_the_kept_frames_only():
+    torch.manual_seed(4)
+    m = build("oracle", 4, 5, width=0.125, image_size=96, hidden=32).eval()
+    x = torch.randn(3, 4, 3, 96, 96)
+    keep = torch.tensor([[False, False, True, True], [True, True, True, True], [False, False, False, True]])
+    with torch.no_grad():
+        per_frame = m.head(m.frame_features(x).flatten(0, 1)).view(3, 4, 5)
+        out = m(x, keep)
+        for i in range(3):
+            torch.testing.assert_close(out[i], per_frame[i][keep[i]].mean(0))
+        # what the dropped frames show does not matter
+        y = x.clone()
+        y[0, :2] = torch.randn(2, 3, 96, 96) * 5
+        y[2, :3] = 0
+        torch.testing.assert_close(m(y, keep)[[0, 2]], out[[0, 2]])
+        # keeping every frame is the CNN with the same weights
+        cnn = build("cnn", 4, 5, width=0.125, image_size=96, hidden=32).eval()
+        cnn.load_state_dict(m.state_dict())
+        torch.testing.assert_close(m(x, torch.ones(3, 4, dtype=torch.bool)), cnn(x))
+    with pytest.raises(GelsimError, match="keep mask"):
+        m(x)
+
+
+def test_variants_fix_their_options():
+    arch, opts = models.variant("stam_paper", {"qk_reduction": 8, "fusion": "mean_logits", "width": 0.5})
+    assert arch == "stam" and opts == {"qk_reduction": 1, "fusion": "joint", "width": 0.5}
+    assert models.variant("cnn", {"fusion": "max_features"}) == ("cnn", {"fusion": "max_features"})
+    with pytest.raises(GelsimError, match="stam_paper is stam with qk_reduction = 1"):
+        build("stam_paper", 2, 3, width=0.125, image_size=96, qk_reduction=4)
+    with pytest.raises(GelsimError, match="unknown"):
+        build("resnet", 2, 3)
+    m = build("stam_paper", 2, 3, width=0.125, image_size=96)
+    assert m.name == "stam" and m.variant == "stam_paper" and m.fusion == "joint"
+    assert m.temporal[0].q.out_channels == m.backbone.out_channels
+
+
+def test_a_variants_config_says_what_was_trained():
+    from stam.config import TrainConfig, resolve_train
+
+    cfg = resolve_train(TrainConfig(), {"model": "oracle"})
+    assert cfg.fusion == "onset" and cfg.model == "oracle"
+    assert resolve_train(TrainConfig(), {"model": "stam_paper"}).qk_reduction == 1
+    with pytest.raises(GelsimError, match="cnn_joint is cnn with fusion"):
+        resolve_train(TrainConfig(), {"model": "cnn_joint", "fusion": "max_features"})
+    # the config's defaults are build()'s, so that a default is never read as a choice
+    for k, v in TrainConfig().model_options().items():
+        if k in models.BUILD_DEFAULTS:
+            assert models.BUILD_DEFAULTS[k] == v, k

@@ -39,7 +39,7 @@ def test_cli_quick(tmp_path, capsys):
     (["--frames", "3", "--precontact", "2"], "frames"),
     (["--fabrics", "1,x"], "--fabrics"),
     (["--fabrics", "999"], "unknown fabric"),
-    (["--resolution", "10x10"], "too small"),
+    (["--resolution", "10x10"], "out of range for vitac"),
     (["--convergence", "--knobs", "colour"], "--knobs"),
     (["--resolution", ","], "--resolution"),
     (["--quick", "--levels", "ultra"], "unknown fidelity"),
