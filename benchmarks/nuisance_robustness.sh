@@ -5,7 +5,7 @@
 # both training protocols and the position-aware models. This wrapper keeps the old command and variables:
 #
 # Usage: benchmarks/nuisance_robustness.sh DATA_DIR OUT_DIR
-#   GEN         gelsim generate options shared by every dataset  [the study's small run]
+#   GEN         gelsim generate options shared by every dataset  [the study's small default set]
 #   LEVELS      levels compared with none                       [handheld]
 #   SEVERITIES  severities of the last level for the plot       [] (e.g. "0.5 2")
 #   STUDY       further benchmarks/nuisance_study.py options    [] (e.g. "--frames 2 4 6 --seeds 2")

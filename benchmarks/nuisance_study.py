@@ -252,8 +252,8 @@ def parse(argv=None):
     p.add_argument("--data", required=True, help="directory holding the datasets (made here when missing)")
     p.add_argument("--out", required=True, help="directory of the runs and the report")
     p.add_argument("--gen", default=SMALL_GEN,
-                   help=f"gelsim generate options shared by every dataset [default: {SMALL_GEN!r}, the small run of "
-                        "docs/stam_study.md; the full study: '--preset cpu --resolution 960x720']")
+                   help=f"gelsim generate options shared by every dataset [default: {SMALL_GEN!r}, a small "
+                        "set for a first look; the study of docs/stam_study.md: '--preset cpu --resolution 960x720']")
     p.add_argument("--levels", nargs="+", default=["none", "handheld"],
                    help="nuisance levels (gelsim generate --nuisance), the first the reference [default: none handheld]")
     p.add_argument("--control-levels", nargs="+",
