@@ -106,6 +106,9 @@ FABRIC_FIELDS = ("id", "name", "family", "material")
 #: labels the paths above, sha256 ``{"video": ..., "labels": ...}``, peak_force_n in N.
 SEQUENCE_FIELDS = ("id", "fabric_id", "action", "num_frames", "contact_onset", "precontact_frames", "split",
                    "video", "labels", "seed", "sha256", "peak_force_n")
+#: After SEQUENCE_FIELDS where present: ``nuisance``, the per-frame nuisance record's path (every dataset made
+#: from 2026-11-29; ``sha256`` then holds its checksum too), and ``unit`` (``--units``).
+OPTIONAL_SEQUENCE_FIELDS = ("nuisance", "unit")
 #: A sequence not generated yet has only these (the manifest of an interrupted run).
 PLANNED_FIELDS = ("id", "fabric_id", "action", "num_frames", "split")
 #: What a reader of frames needs of each sequence (stam).
@@ -128,7 +131,7 @@ def sequence_entry(record: Mapping[str, Any]) -> dict:
     """The manifest's entry of a finished sequence from its record (SEQUENCE_FIELDS, ``nuisance`` and ``unit``
     if any: datasets made before the nuisance record have none; timings stay in the record: they vary from run
     to run)."""
-    return {k: record[k] for k in SEQUENCE_FIELDS + tuple(k for k in ("nuisance", "unit") if k in record)}
+    return {k: record[k] for k in SEQUENCE_FIELDS + tuple(k for k in OPTIONAL_SEQUENCE_FIELDS if k in record)}
 
 
 def manifest_problem(m: Any) -> str | None:

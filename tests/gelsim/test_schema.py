@@ -49,7 +49,9 @@ def test_readme_manifest_example_has_the_schema_fields_in_order():
     assert doc["format"] == schema.FORMAT and doc["format_version"] == schema.FORMAT_VERSION
     assert tuple(doc["profile"]) == schema.PROFILE_FIELDS
     assert tuple(doc["fabrics"][0]) == schema.FABRIC_FIELDS
-    assert tuple(doc["sequences"][0]) == schema.SEQUENCE_FIELDS
+    entry = tuple(doc["sequences"][0])
+    assert entry[:len(schema.SEQUENCE_FIELDS)] == schema.SEQUENCE_FIELDS
+    assert set(entry[len(schema.SEQUENCE_FIELDS):]) <= set(schema.OPTIONAL_SEQUENCE_FIELDS)
     assert tuple(doc["splits"]) == schema.SPLITS
 
 
@@ -130,3 +132,15 @@ def test_sha256_of_file_and_png_directory(tmp_path):
     (d / "000000.png").write_bytes(b"1")
     (d / "notes.txt").write_bytes(b"ignored")
     assert schema.sha256_of(d) == hashlib.sha256(b"12").hexdigest()
+
+
+def test_dataset_doc_nuisance_record_table_is_the_record():
+    """docs/dataset.md's table of the per-frame nuisance record names every key of
+    gelsim.nuisance.record.RECORD, with its dtype, and no other."""
+    from gelsim.nuisance.record import RECORD
+
+    text = README.read_text()
+    start = text.index("## The per-frame nuisance record")
+    sec = text[start:text.index("\n## ", start + 1)]
+    rows = dict(re.findall(r"^\| `(\w+)` \| \([^)]*\) (\w+) \|", sec, re.M))
+    assert rows == {k.name: k.dtype for k in RECORD}
