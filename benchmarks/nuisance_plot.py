@@ -57,6 +57,11 @@ def main(argv=None) -> int:
     axes[0].set_ylabel("test accuracy, % (mean over n)")
     axes[0].legend(fontsize=7)
     fig.suptitle(a.title)
+    # Each point is its own run, with its own pretrained backbone: the bars are the heads' seeds and the test
+    # sequences, not the backbone's own spread, which a difference between points also holds.
+    fig.text(0.5, 0.01, "each point: its own dataset and backbone; bars: 95% CI over test sequences and head seeds, "
+             "without the backbone's own spread", ha="center", fontsize=7)
+    fig.tight_layout(rect=(0, 0.04, 1, 0.93))
     write_figure(a.out, fig)
     return 0
 
