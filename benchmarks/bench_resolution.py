@@ -257,7 +257,7 @@ def _probe_points(data: Path, out: Path, points, rows, shape, mm_per_px: float, 
     return correct
 
 
-def _correct(run: Path, model: str, n: int) -> dict[str, float]:
+def seed_correctness(run: Path, model: str, n: int) -> dict[str, float]:
     """Test sequence id -> correctness (seed-averaged) of one cell of a clean-setting run."""
     by_id: dict[str, list[float]] = {}
     for f in sorted((run / "cells" / "clean" / f"n{n}" / model).glob("seed*/result.json")):
@@ -362,7 +362,7 @@ def _stam_points(data: Path, out: Path, points, rows, args) -> list[dict[str, di
             res["wall_seconds"] = round(time.perf_counter() - t0, 1)
             atomic_write_json(res_path, res)
         row.update(pretrain_val_frame_acc=res["pretrain"]["val_acc"], run=str(out / f"out-{name}"))
-        correct.append({f"{m}_n{n}": _correct(out / f"out-{name}", m, n) for m in args.models for n in args.frames})
+        correct.append({f"{m}_n{n}": seed_correctness(out / f"out-{name}", m, n) for m in args.models for n in args.frames})
     return correct
 
 

@@ -22,7 +22,7 @@ import numpy as np
 from . import stats
 from .errors import StamError
 from .config import SETTINGS as SETTING_ORDER
-from .experiment import _ci_text, _correct, _interval, _shift_spread, short_label, versus_cnn
+from .experiment import ci_text, seed_correctness, interval, shift_spread, short_label, versus_cnn
 from .models import MODELS as MODEL_ORDER
 
 
@@ -71,7 +71,7 @@ def compare_runs(a: str | Path, b: str | Path) -> dict:
     correct = {}
     for run, cells in (("a", cells_a), ("b", cells_b)):
         for k in keys:
-            correct[(run, k)] = _correct(cells[k], ids)
+            correct[(run, k)] = seed_correctness(cells[k], ids)
     shift = {run: stats.seed_variance_ratio([correct[(run, k)] for k in keys])["shift_variance"] for run in "ab"}
 
     names, columns, spreads = [], [], []
@@ -81,7 +81,7 @@ def compare_runs(a: str | Path, b: str | Path) -> dict:
         to its variance (each run's own shift, its cells' seeds independent)."""
         names.append(name)
         columns.append(sum(w * correct[rk].mean(0) for w, rk in weighted))
-        spreads.append(sum(shift[run] * _shift_spread([(w, rk) for w, rk in weighted if rk[0] == run], correct)
+        spreads.append(sum(shift[run] * shift_spread([(w, rk) for w, rk in weighted if rk[0] == run], correct)
                            for run in "ab"))
 
     def change(k, w=1.0):  # b - a of one cell, weighted
@@ -111,7 +111,7 @@ def compare_runs(a: str | Path, b: str | Path) -> dict:
     ci = {}
     for name, (mean, lo, hi), spread in zip(names, stats.bootstrap_intervals(np.stack(columns, axis=1)), spreads):
         lo, hi = stats.widen(mean, lo, hi, spread)
-        ci[name] = {**_interval(mean, lo, hi), "resolved": bool(lo > 0 or hi < 0)}
+        ci[name] = {**interval(mean, lo, hi), "resolved": bool(lo > 0 or hi < 0)}
 
     def acc(run, k):
         return 100 * float(correct[(run, k)].mean())
@@ -131,7 +131,7 @@ def compare_runs(a: str | Path, b: str | Path) -> dict:
 
 
 def _ci(d: dict) -> str:
-    text = _ci_text(d, signed=True)
+    text = ci_text(d, signed=True)
     return f"**{text}**" if d["resolved"] else text
 
 

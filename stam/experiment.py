@@ -367,7 +367,7 @@ def _run_experiment(data_dir, out, preset, seeds, models, frames, settings, over
     return result
 
 
-def _correct(cells: list[dict], test_ids: list[str]) -> np.ndarray:
+def seed_correctness(cells: list[dict], test_ids: list[str]) -> np.ndarray:
     """``0/1 (S, N)``: each seed's correctness on the test sequences, in ``test_ids`` order."""
     rows = []
     for c in sorted(cells, key=lambda c: c["seed"]):
@@ -420,7 +420,8 @@ def _paper_sum(terms: list[tuple[int, str, str]], n: int) -> float | None:
     return None if None in vals else sum(w * v for (w, _, _), v in zip(terms, vals))
 
 
-def _interval(mean: float, lo: float, hi: float, scale: float = 100.0) -> dict:
+def interval(mean: float, lo: float, hi: float, scale: float = 100.0) -> dict:
+    """``{"mean", "ci95": [lo, hi]}`` of a proportion's estimate and 95% bounds, in points (x ``scale``)."""
     return {"mean": float(scale * mean), "ci95": [float(scale * lo), float(scale * hi)]}
 
 
@@ -435,7 +436,7 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
     grouped: dict = {}
     for c in cells:
         grouped.setdefault((c["setting"], c["frames"], c["model"]), []).append(c)
-    correct = {key: _correct(cs, test_ids) for key, cs in grouped.items()}
+    correct = {key: seed_correctness(cs, test_ids) for key, cs in grouped.items()}
     seed_mean = {key: m.mean(0) for key, m in correct.items()}
 
     # Every statistic below is a mean over the test sequences of one per-sequence column, a weighted
@@ -449,7 +450,7 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
     def column(name, weighted):
         names.append(name)
         columns.append(sum(w * seed_mean[key] for w, key in weighted))
-        spreads.append(_shift_spread(weighted, correct))
+        spreads.append(shift_spread(weighted, correct))
 
     # the clean setting may hold extra n (run for the matched cost of the frames before contact: n - 1)
     clean_frames = sorted({n for s, n, _ in seed_mean if s == "clean"} | set(frames))
@@ -475,7 +476,7 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
     for s, n, m in cell_keys:
         per_seed = 100 * correct[(s, n, m)].mean(1)
         tables.setdefault(s, {}).setdefault(m, {})[n] = {
-            **_interval(*ci[(s, n, m)]), "std": float(np.std(per_seed, ddof=1)) if per_seed.size > 1 else 0.0,
+            **interval(*ci[(s, n, m)]), "std": float(np.std(per_seed, ddof=1)) if per_seed.size > 1 else 0.0,
             "seeds": int(per_seed.size), "values": per_seed.tolist(), "paper": _paper(s, m, n)}
 
     differences = []
@@ -485,7 +486,7 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
             if (label, n) not in ci:
                 continue
             paper = _paper_mean(list(papers.values())) if n == "mean" else papers[n]
-            d = _interval(*ci[(label, n)])
+            d = interval(*ci[(label, n)])
             differences.append({"difference": label, "kind": kind, "frames": n, "terms": [list(t) for t in terms], **d,
                                 "resolved": d["ci95"][0] > 0 or d["ci95"][1] < 0, "paper": paper})
 
@@ -497,7 +498,7 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
                 r = stats.ratio_ci(avg["noisy"], avg["clean"])
                 if r is not None:
                     # the seeds' shift by the delta method: var(N/C) = r^2 (var N / N^2 + var C / C^2)
-                    shift = {s: seed_check["shift_variance"] * _shift_spread(
+                    shift = {s: seed_check["shift_variance"] * shift_spread(
                         [(1 / len(frames), (s, n, m)) for n in frames], correct) for s in ("clean", "noisy")}
                     r = (r[0], *stats.widen(r[0], r[1], r[2], r[0] ** 2 * sum(
                         shift[s] / avg[s].mean() ** 2 for s in ("clean", "noisy"))))
@@ -520,7 +521,7 @@ def analyse(cells: list[dict], models, frames, settings, test_ids: list[str],
                           "level": stats.CI_LEVEL, "test_sequences": len(test_ids)}}
 
 
-def _shift_spread(weighted: list[tuple[float, tuple]], correct: dict) -> float:
+def shift_spread(weighted: list[tuple[float, tuple]], correct: dict) -> float:
     """sum of weight^2 / seeds over ``weighted`` (weight, cell key) pairs: times the seeds' shift variance,
     what that shift adds to the variance of sum(weight x the cell's seed-averaged accuracy), the cells'
     seeds taken as independent."""
@@ -562,11 +563,11 @@ def _precontact(seed_mean: dict, correct: dict, models, frames, test_ids: list[s
             v[i] += seed_mean[(tested, n, m)][i] - seed_mean[("clean", k, m)][i]
         sums[m] = v
         cells = [(w, (s, f, m)) for (s, f), w in share.items() if w]
-        out[m] = _precontact_ci(v, count, _shift_spread(cells, correct) * shift_variance)
+        out[m] = _precontact_ci(v, count, shift_spread(cells, correct) * shift_variance)
     for m in versus_cnn(models):
         if m in sums and "cnn" in sums:
             cells = [(w, (s, f, model)) for (s, f), w in share.items() if w for model in (m, "cnn")]
-            diffs[m] = _precontact_ci(sums[m] - sums["cnn"], count, _shift_spread(cells, correct) * shift_variance)
+            diffs[m] = _precontact_ci(sums[m] - sums["cnn"], count, shift_spread(cells, correct) * shift_variance)
     onset_values = sorted({n - k for _, n, k in pairs})
     return {"tested": tested, "windows": len(pairs), "sequences": int((count > 0).sum()), "onsets": onset_values,
             "models": out, "minus_cnn": diffs}
@@ -574,7 +575,7 @@ def _precontact(seed_mean: dict, correct: dict, models, frames, test_ids: list[s
 
 def _precontact_ci(values: np.ndarray, count: np.ndarray, variance: float) -> dict:
     mean, lo, hi = stats.ratio_ci(values, count)
-    d = _interval(mean, *stats.widen(mean, lo, hi, variance))
+    d = interval(mean, *stats.widen(mean, lo, hi, variance))
     return {**d, "resolved": d["ci95"][0] > 0 or d["ci95"][1] < 0}
 
 
@@ -617,7 +618,8 @@ def _paper(setting: str, model: str, n: int) -> float | None:
     return None
 
 
-def _ci_text(d: dict, signed: bool = False) -> str:
+def ci_text(d: dict, signed: bool = False) -> str:
+    """An :func:`interval` as ``"mean [lo, hi]"`` to 0.1 point (with signs when ``signed``)."""
     f = "+.1f" if signed else ".1f"
     return f"{d['mean']:{f}} [{d['ci95'][0]:{f}}, {d['ci95'][1]:{f}}]"
 
@@ -638,7 +640,7 @@ def markdown_table(tables: dict, setting: str, models, frames, seeds: int, test_
         for n in frames:
             c = tables.get(setting, {}).get(m, {}).get(n)
             p = _paper(setting, m, n)
-            row.append(("–" if c is None else _ci_text(c)) + (f" ({p:.2f})" if p is not None else ""))
+            row.append(("–" if c is None else ci_text(c)) + (f" ({p:.2f})" if p is not None else ""))
         lines.append(f"| {MODEL_LABELS.get(m, m)} | " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
@@ -664,7 +666,7 @@ def markdown_differences(analysis: dict, frames) -> str:
             if d is None:
                 cells.append("–")
                 continue
-            text = _ci_text(d, signed=True)
+            text = ci_text(d, signed=True)
             text = f"**{text}**" if d["resolved"] else text
             cells.append(text + (f" ({d['paper']:+.2f})" if d["paper"] is not None else ""))
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
@@ -691,7 +693,7 @@ def markdown_differences(analysis: dict, frames) -> str:
 
 
 def _bold_ci(d: dict) -> str:
-    text = _ci_text(d, signed=True)
+    text = ci_text(d, signed=True)
     return f"**{text}**" if d["resolved"] else text
 
 

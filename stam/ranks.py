@@ -32,6 +32,7 @@ def _group():
 
         if not (td.is_available() and td.is_initialized()):
             return None
+        # torch has no public accessor for the default group's store (tests/test_private_names.py: THIRD_PARTY)
         from torch.distributed.distributed_c10d import _get_default_store
 
         return td.get_rank(), td.get_world_size(), _get_default_store()

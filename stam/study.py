@@ -26,7 +26,7 @@ import statistics
 from pathlib import Path
 
 from .errors import StamError
-from .experiment import PAPER_FRAMES, PAPER_TABLES, _ci_text, short_label
+from .experiment import PAPER_FRAMES, PAPER_TABLES, ci_text, short_label
 
 # What a study run holds unless told otherwise: the baseline, its fusions, the position-aware head
 # with and without attention, STAM as the default reads it and as the paper's count reads it, and the
@@ -170,7 +170,7 @@ def _setting_difference(results: dict, model: str, setting: str) -> dict | None:
 def _bold(d: dict | None, signed: bool = True) -> str:
     if d is None:
         return "–"
-    text = _ci_text(d, signed=signed)
+    text = ci_text(d, signed=signed)
     return f"**{text}**" if d.get("resolved") else text
 
 
@@ -237,7 +237,7 @@ def mechanism_summary(rows: list[dict]) -> list[str]:
         costs = [(lv, find(lv, p, "cnn")) for lv in levels if find(lv, p, "cnn")]
         if costs:
             out.append(f"Nuisance content ({PROTOCOLS[p]}): the CNN's cost " + "; ".join(
-                f"{lv} {_ci_text(r['cost'], signed=True)}" for lv, r in costs)
+                f"{lv} {ci_text(r['cost'], signed=True)}" for lv, r in costs)
                 + f" (paper {paper_cost('cnn'):+.1f}).")
     groups = {"Fusion": ("cnn_mean_features", "cnn_max_features", "cnn_flatten"),
               "STAM head": ("cnn_joint", "stam", "stam_paper")}
@@ -248,7 +248,7 @@ def mechanism_summary(rows: list[dict]) -> list[str]:
                 for m in models:
                     r = find(lv, p, m)
                     if r and r["gain_over_cnn"]:
-                        parts.append(f"{short_label(m)} at {lv} {_ci_text(r['gain_over_cnn'], signed=True)}"
+                        parts.append(f"{short_label(m)} at {lv} {ci_text(r['gain_over_cnn'], signed=True)}"
                                      + (" (the paper's pattern)" if r["paper_pattern"] else ""))
             if parts:
                 out.append(f"{name} ({PROTOCOLS[p]}), gain over the CNN's cost: " + "; ".join(parts)
@@ -256,8 +256,8 @@ def mechanism_summary(rows: list[dict]) -> list[str]:
     for lv in levels:
         a, b = find(lv, "noisy", "cnn"), find(lv, "transfer", "cnn")
         if a and b:
-            out.append(f"Training protocol at {lv}: the CNN's cost trained noisy {_ci_text(a['cost'], signed=True)}, "
-                       f"trained clean {_ci_text(b['cost'], signed=True)}.")
+            out.append(f"Training protocol at {lv}: the CNN's cost trained noisy {ci_text(a['cost'], signed=True)}, "
+                       f"trained clean {ci_text(b['cost'], signed=True)}.")
     return out
 
 
