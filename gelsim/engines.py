@@ -162,16 +162,19 @@ class TorchMarkers:
 class TorchEngine:
     """The whole batch at once on ``device`` (see the module docstring). ``optics_batch``: the optics render at
     most that many frames per call (the torch optics' frames do not depend on their batch); ``sync``: the clock
-    waits for the device (each stage's time its own on a GPU; else what the host waited for)."""
+    waits for the device (each stage's time its own on a GPU; else what the host waited for). ``i420``: the frames
+    come to the host as :class:`gelsim.video.I420` (converted on the device, :func:`gelsim.video_torch.rgb_to_i420`:
+    half the bytes, and no conversion left to the host's encoder; an H.264 video of even size takes them)."""
 
     name = "torch"
 
-    def __init__(self, device=None, *, optics_batch: int | None = None, sync: bool = False):
+    def __init__(self, device=None, *, optics_batch: int | None = None, sync: bool = False, i420: bool = False):
         from .optics.torch_backend import resolve_device
 
         self.device = device if hasattr(device, "type") else resolve_device(device)
         self.optics_batch = optics_batch
         self.sync = sync
+        self.i420 = i420
 
     def clock(self) -> float:
         if self.sync and self.device.type == "cuda":
@@ -220,10 +223,15 @@ class TorchEngine:
             out[j] = r
         return out
 
-    @staticmethod
-    def to_host(frames):
-        """uint8 ``(B, H, W, 3)`` frames on the device, as a host array."""
-        return frames.cpu().numpy()
+    def to_host(self, frames):
+        """uint8 ``(B, H, W, 3)`` frames on the device, as a host array; with ``i420``, a list of
+        :class:`gelsim.video.I420` (converted here, on the device)."""
+        if not self.i420:
+            return frames.cpu().numpy()
+        from .video import I420
+        from .video_torch import rgb_to_i420
+
+        return [I420(p) for p in rgb_to_i420(frames).cpu().numpy()]
 
     def _tensor(self, x):
         import torch
