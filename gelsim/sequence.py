@@ -47,8 +47,7 @@ from .errors import GelsimError
 from .fidelity import Fidelity
 from .gel.twoscale import crown_envelope, envelope_kernel_px, texture_scale_mm
 from .motion import Motion
-from .scene import (PHYSICS_MM_PER_PX, HeightPatch, TouchedObject, as_object, physics_surface,  # noqa: F401
-                    press_properties, travel_patch, travel_patch_parts)
+from .scene import PHYSICS_MM_PER_PX, HeightPatch, TouchedObject, as_object, physics_surface, press_properties, travel_patch, travel_patch_parts  # noqa: F401
 from .sensor import SensorProfile
 from .stream import (NUMPY, FrameParts, FrameRecord, FrameRequest, FrameSetup, StageTimer, Touch, make_frames,
                      noise_generator)
