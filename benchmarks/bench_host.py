@@ -17,7 +17,10 @@ host work does not depend on the device, so it is measured here on any build (th
 * **run** (``--run``): ``gelsim.dataset.generate`` with ``backend="torch", stages="all"`` on ``--device`` (default
   the CPU), one worker in this process: the records' host stages (``fabric``, ``physics``: CPU; ``encode``: CPU of
   the writer and the labels), the device stages' wall seconds, and this process's CPU time per frame beside them.
-  On the CPU build the device's work runs on this core too, so only the records' host stages are host time there.
+  On the CPU build the device's work runs on this core too, so only the records' host stages are host time there;
+  and even they are not all host time: on the torch engine the records' ``fabric`` also holds the device's patch
+  work (the patches finished, each frame's heights sampled: wall seconds; 80-95 ms per frame on the CPU build),
+  so **steps** is this script's measure of the host.
 
     .venv/bin/python benchmarks/bench_host.py [--fabrics 4] [--sequences-per-fabric 2] [--resolution 960x720]
         [--run] [--device cpu] [--json]
