@@ -58,7 +58,7 @@ class PatchBank:
         :func:`gelsim.gel.twoscale.crown_envelope` exactly)."""
         arrays = [ops.closing(self.heights[s:s + 1, :self.sizes[s][0], :self.sizes[s][1]], k)[0]
                   for s, k in kernels.items()]
-        return PatchBank._stack(arrays, [self.origins[s] for s in kernels], self.mm_per_px)
+        return self._stack(arrays, [self.origins[s] for s in kernels], self.mm_per_px)
 
 
 def _on_device(patch, device):
