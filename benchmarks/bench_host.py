@@ -6,15 +6,21 @@ host work does not depend on the device, so it is measured here on any build (th
 
 * **steps** (always): the host's own steps for the sequences of a sample of the default dataset, each timed alone
   in CPU seconds of this thread, through the functions a sequence is prepared with (:mod:`gelsim.sequence`) and
-  the dataset's writer call: the physics surface, the contact simulation (MuJoCo), the image-resolution patch and its crown
-  envelope (once per sequence), then per frame the RGB to YUV 4:2:0 conversion and the H.264 encoder
-  (:class:`gelsim.video.VideoWriter`), and the labels' file. The frames encoded are the numpy path's
-  (:func:`gelsim.sequence.render_sequence`): the device path's are the same within a DN, and the encoder's time
-  depends on what it encodes;
+  the dataset's writer call: the physics surface, the contact simulation (MuJoCo), the image-resolution patch's host
+  part (the fabric's axis-aligned grid, :func:`gelsim.scene.travel_patch_parts`; once per sequence), then per frame
+  the H.264 encoder given the device's I420 planes (:class:`gelsim.video.VideoWriter` with a
+  :class:`gelsim.video.I420`), and the labels' file. Beside them, the steps ``--stages all`` now makes on the device
+  (a rotated patch's resampling, its crown envelope, the RGB to YUV 4:2:0 conversion), timed in their numpy twins:
+  what they cost a host that made them (the route before 2026-11-29), not host time of this route. The frames
+  encoded are the numpy path's (:func:`gelsim.sequence.render_sequence`): the device path's are the same within a
+  DN, and the encoder's time depends on what it encodes;
 * **run** (``--run``): ``gelsim.dataset.generate`` with ``backend="torch", stages="all"`` on ``--device`` (default
   the CPU), one worker in this process: the records' host stages (``fabric``, ``physics``: CPU; ``encode``: CPU of
   the writer and the labels), the device stages' wall seconds, and this process's CPU time per frame beside them.
-  On the CPU build the device's work runs on this core too, so only the records' host stages are host time there.
+  On the CPU build the device's work runs on this core too, so only the records' host stages are host time there;
+  and even they are not all host time: on the torch engine the records' ``fabric`` also holds the device's patch
+  work (the patches finished, each frame's heights sampled: wall seconds; 80-95 ms per frame on the CPU build),
+  so **steps** is this script's measure of the host.
 
     .venv/bin/python benchmarks/bench_host.py [--fabrics 4] [--sequences-per-fabric 2] [--resolution 960x720]
         [--run] [--device cpu] [--json]
@@ -34,6 +40,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")   # before numpy, OpenCV and torch
 from gelsim.cli import print_json, run_script  # noqa: E402
 
 TARGET_MS_960 = 2.0
+#: What stays on the host's CPU per frame of --stages all (see the module docstring).
+HOST_STEPS = ("physics_surface", "contact_simulation", "image_grid", "h264", "labels_file")
+#: What --stages all makes on the device (since 2026-11-29), timed here in its numpy twin.
+DEVICE_STEPS = ("image_resample", "crown_envelope", "rgb_to_yuv420")
 
 
 def _sample(args):
@@ -65,23 +75,23 @@ def measure_steps(args) -> dict:
     from gelsim.contact import simulate
     from gelsim.motion import sample_motion
     from gelsim.optics import Renderer
-    from gelsim.scene import as_object, physics_surface, travel_patch
+    from gelsim.scene import as_object, physics_surface, travel_patch_parts
     from gelsim.sequence import SequenceOptions, crown_envelope_patch, render_sequence
     from gelsim.stream import sequence_labels
-    from gelsim.video import VideoWriter
+    from gelsim.video import I420, VideoWriter
 
     profile, fid, cat, specs, ranges = _sample(args)
     renderer = Renderer(profile, fid.render_backend, supersample=fid.supersample)
     clock = time.thread_time
-    took = dict.fromkeys(("physics_surface", "contact_simulation", "image_patch", "crown_envelope", "rgb_to_yuv420",
-                          "h264", "labels_file"), 0.0)
+    took = dict.fromkeys(HOST_STEPS, 0.0)
+    moved = dict.fromkeys(DEVICE_STEPS, 0.0)
     frames = 0
     with tempfile.TemporaryDirectory(prefix="gelsim-bench-host-") as tmp:
         # the first sequence twice, its first pass untimed: what a process pays once (imports, MuJoCo's and
         # the encoder's set-up, compiled kernels loaded) is not a frame's cost
         for k, spec in enumerate([specs[0], *specs]):
             if k == 1:
-                took, frames = dict.fromkeys(took, 0.0), 0
+                took, moved, frames = dict.fromkeys(took, 0.0), dict.fromkeys(moved, 0.0), 0
             obj = as_object(cat[spec.fabric_id])
             motion = sample_motion(spec.action, spec.seed, frames=(spec.num_frames, spec.num_frames),
                                    precontact=None if spec.precontact_frames is None
@@ -93,35 +103,38 @@ def measure_steps(args) -> dict:
             contact = simulate(motion, surface, profile, fid)
             took["contact_simulation"] += clock() - t
             t = clock()
-            patch = travel_patch(obj, motion, profile, profile.image.mm_per_px, seed=spec.seed,
-                                 poses=(contact.position_mm, contact.yaw_deg))
-            took["image_patch"] += clock() - t
+            parts = travel_patch_parts(obj, motion, profile, profile.image.mm_per_px, seed=spec.seed,
+                                       poses=(contact.position_mm, contact.yaw_deg))
+            took["image_grid"] += clock() - t
+            t = clock()
+            patch = parts.finish()
+            moved["image_resample"] += clock() - t
             t = clock()
             crown_envelope_patch(patch, obj, profile, fid)
-            took["crown_envelope"] += clock() - t
+            moved["crown_envelope"] += clock() - t
             opts = SequenceOptions(renderer=renderer, contact=contact, surface=surface, patch=patch)
             records = list(render_sequence(obj, motion, profile, fid, seed=spec.seed, options=opts))
             with VideoWriter(Path(tmp) / f"{spec.id}.mp4", fps=profile.image.fps_hz) as writer:
                 for r in records:
                     t = clock()
-                    cv2.cvtColor(np.ascontiguousarray(r.frame), cv2.COLOR_RGB2YUV_I420)
-                    took["rgb_to_yuv420"] += clock() - t
+                    planes = cv2.cvtColor(np.ascontiguousarray(r.frame), cv2.COLOR_RGB2YUV_I420)
+                    moved["rgb_to_yuv420"] += clock() - t
                     t = clock()
-                    writer.write(r.frame)
+                    writer.write(I420(planes))
                     took["h264"] += clock() - t
             t = clock()
             atomic_write_npz(Path(tmp) / f"{spec.id}.npz", **sequence_labels([r.labels for r in records]))
             took["labels_file"] += clock() - t
             frames += len(records)
-    # the writer's call converts the frame itself: its time less the conversion's is the encoder's
-    took["h264"] -= took["rgb_to_yuv420"]
     per = {k: round(1000 * v / frames, 3) for k, v in took.items()}
-    groups = {"fabric": per["physics_surface"] + per["image_patch"] + per["crown_envelope"],
-              "physics": per["contact_simulation"],
-              "encode": per["rgb_to_yuv420"] + per["h264"] + per["labels_file"]}
+    dev = {k: round(1000 * v / frames, 3) for k, v in moved.items()}
+    groups = {"fabric": per["physics_surface"] + per["image_grid"], "physics": per["contact_simulation"],
+              "encode": per["h264"] + per["labels_file"]}
     return {"sequences": len(specs), "frames": frames, "ms_per_frame_by_step": per,
             "ms_per_frame_as_the_records_group_them": {k: round(v, 3) for k, v in groups.items()},
-            "host_ms_per_frame": round(sum(per.values()), 3)}
+            "host_ms_per_frame": round(sum(per.values()), 3),
+            "on_the_device_numpy_twin_ms_per_frame": dev,
+            "host_ms_per_frame_before": round(sum(per.values()) + sum(dev.values()), 3)}
 
 
 def measure_run(args) -> dict:
@@ -171,6 +184,10 @@ def main() -> int:
     print(f"host CPU per frame, {s['sequences']} sequences ({s['frames']} frames) at {args.resolution}: "
           f"{s['host_ms_per_frame']:.2f} ms (target {TARGET_MS_960} ms at 960x720)")
     for k, v in s["ms_per_frame_by_step"].items():
+        print(f"  {k:20s} {v:6.3f} ms")
+    print(f"on the device with --stages all (their numpy twins on this host; {s['host_ms_per_frame_before']:.2f} ms "
+          "per frame when the host made them too):")
+    for k, v in s["on_the_device_numpy_twin_ms_per_frame"].items():
         print(f"  {k:20s} {v:6.3f} ms")
     if "run" in result:
         r = result["run"]

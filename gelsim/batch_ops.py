@@ -155,6 +155,16 @@ def window_extreme(x, k: int, dim: int, op: str):
     return fn(m.narrow(dim, 0, n), m.narrow(dim, k - w, n))
 
 
+def closing(x, k: int):
+    """Grey closing of each frame of ``(B, H, W)`` ``x`` by a k x k square, the border replicated: a dilation then an
+    erosion (:func:`window_extreme` along the rows and the columns), what ``cv2.morphologyEx(MORPH_CLOSE)`` with
+    BORDER_REPLICATE gives (:func:`gelsim.gel.twoscale.crown_envelope`'s closing): maxima and minima, exact."""
+    if k < 2:
+        return x
+    d = window_extreme(window_extreme(x, k, 1, "max"), k, 2, "max")
+    return window_extreme(window_extreme(d, k, 1, "min"), k, 2, "min")
+
+
 def box_filter(x, k: int):
     """cv2.blur of each frame of ``(B, H, W)`` (or ``(B, C, H, W)`` channel by channel) ``x`` with a k x k box,
     anchor k // 2, border replicated: the mean over rows [i - k // 2, i - k // 2 + k) and likewise columns

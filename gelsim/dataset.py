@@ -660,7 +660,11 @@ def generate_group(specs: list[SequenceSpec], write: Iterable[str] | None = None
     motions = [_motion(spec) for spec in specs]
     paths = {s.id: root / video_path(s.video_stem(), config.format) for s in specs if s.id in write}
     npaths = {s.id: root / s.nuisance_rel() for s in specs if s.id in write}
-    engine = TorchEngine(renderer.device, optics_batch=w["route"].batch)
+    h, wd = profile.shape
+    # H.264 at an even size encodes 4:2:0: the frames converted on the device come back as I420 (half the bytes,
+    # the same planes as the host's conversion: gelsim.video_torch)
+    engine = TorchEngine(renderer.device, optics_batch=w["route"].batch,
+                         i420=config.format == "h264" and h % 2 == 0 and wd % 2 == 0)
     with contextlib.ExitStack() as stack:
         sinks = [[stack.enter_context(VideoSink(paths[s.id], fmt=config.format, fps=profile.image.fps_hz)),
                   NuisanceLog(npaths[s.id])] if s.id in write else [] for s in specs]

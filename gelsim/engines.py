@@ -13,8 +13,9 @@ batch of frames runs on.
 
 An engine has the same methods, each on the whole batch: ``press`` (the touches' imprints), ``displace`` (the
 markers), ``locate`` (each imprint's contact centroid and box), ``render`` (the uint8 frames of the frames' optics
-inputs), ``clock`` (its stage clock), and for sequences ``upload``, ``heights`` and ``envelopes`` (the objects'
-height patches seen through each frame's pose: :meth:`gelsim.scene.HeightPatch.sample` or its torch twin
+inputs), ``clock`` (its stage clock), and for sequences ``upload`` and ``crown_envelopes`` (the objects' height
+patches and their crown envelopes, as the engine keeps them), ``heights`` and ``envelopes`` (those seen through each
+frame's pose: :meth:`gelsim.scene.HeightPatch.sample` or its torch twin
 :func:`gelsim.scene_torch.sample_patches`), ``renderer`` (the default renderer) and ``to_host`` (the frames as
 uint8 arrays on the host). The imprints and markers it returns are its own batch objects; ``imprint``
 and ``markers`` give frame ``b``'s as :class:`gelsim.gel.Imprint` and :class:`gelsim.markers.Markers` (the torch
@@ -47,6 +48,8 @@ class NumpyEngine:
     wall time)."""
 
     name = "numpy"
+    #: Sequences give this engine their finished patches and envelopes (:class:`gelsim.sequence.SequenceRun`).
+    device_patches = False
 
     def __init__(self, clock=stage_clock):
         self.clock = clock
@@ -61,8 +64,14 @@ class NumpyEngine:
 
     @staticmethod
     def upload(patches: Sequence) -> list:
-        """Height patches (:class:`gelsim.scene.HeightPatch`, or None) as :meth:`heights` reads them."""
-        return list(patches)
+        """Height patches (:class:`gelsim.scene.HeightPatch`, :class:`gelsim.scene.PatchParts` finished here, or
+        None) as :meth:`heights` reads them."""
+        return [p.finish() if hasattr(p, "finish") else p for p in patches]
+
+    def crown_envelopes(self, patches: list, runs: Sequence) -> list:
+        """The sequences' crown envelopes (their :class:`gelsim.sequence.SequenceRun`'s, made on the host) as
+        :meth:`envelopes` reads them."""
+        return self.upload([r.envelope for r in runs])
 
     @staticmethod
     def heights(patches: list, which: Sequence[int], poses: Sequence, profile) -> list[np.ndarray]:
@@ -162,16 +171,22 @@ class TorchMarkers:
 class TorchEngine:
     """The whole batch at once on ``device`` (see the module docstring). ``optics_batch``: the optics render at
     most that many frames per call (the torch optics' frames do not depend on their batch); ``sync``: the clock
-    waits for the device (each stage's time its own on a GPU; else what the host waited for)."""
+    waits for the device (each stage's time its own on a GPU; else what the host waited for). ``i420``: the frames
+    come to the host as :class:`gelsim.video.I420` (converted on the device, :func:`gelsim.video_torch.rgb_to_i420`:
+    half the bytes, and no conversion left to the host's encoder; an H.264 video of even size takes them)."""
 
     name = "torch"
+    #: Sequences leave this engine their patches' last steps (a rotated fabric's resampling, the crown envelope),
+    #: made on its device (:func:`gelsim.scene_torch.finish_rotated`, :meth:`gelsim.scene_torch.PatchBank.closed`).
+    device_patches = True
 
-    def __init__(self, device=None, *, optics_batch: int | None = None, sync: bool = False):
+    def __init__(self, device=None, *, optics_batch: int | None = None, sync: bool = False, i420: bool = False):
         from .optics.torch_backend import resolve_device
 
         self.device = device if hasattr(device, "type") else resolve_device(device)
         self.optics_batch = optics_batch
         self.sync = sync
+        self.i420 = i420
 
     def clock(self) -> float:
         if self.sync and self.device.type == "cuda":
@@ -189,14 +204,31 @@ class TorchEngine:
                                       device=self.device))
 
     def upload(self, patches: Sequence):
-        """Height patches on the device (:class:`gelsim.scene_torch.PatchBank`; None where a sequence has none,
-        none at all: None)."""
+        """Height patches on the device (:class:`gelsim.scene_torch.PatchBank`, a rotated fabric's
+        :class:`gelsim.scene.PatchParts` finished there; None where a sequence has none, none at all: None)."""
         from .scene_torch import PatchBank
 
         have = [k for k, p in enumerate(patches) if p is not None]
         if not have:
             return None
         return PatchBank.from_patches([patches[k] for k in have], self.device), {k: j for j, k in enumerate(have)}
+
+    def crown_envelopes(self, bank, runs: Sequence):
+        """The sequences' crown envelopes on the device, as :meth:`envelopes` reads them: the closings of ``bank``'s
+        patches (:meth:`gelsim.scene_torch.PatchBank.closed`, :attr:`gelsim.sequence.SequenceRun.envelope_px`), or
+        the runs' own where they were made on the host (runs prepared for the numpy engine)."""
+        made = [r.envelope is not None for r in runs]
+        if any(made):
+            if not all(made[k] or r.envelope_px is None for k, r in enumerate(runs)):
+                raise ValueError("runs prepared for both engines in one batch; prepare them with one device_patch")
+            return self.upload([r.envelope for r in runs])
+        if bank is None:
+            return None
+        patches, index = bank
+        have = [k for k, r in enumerate(runs) if k in index and r.envelope_px is not None]
+        if not have:
+            return None
+        return patches.closed({index[k]: runs[k].envelope_px for k in have}), {k: j for j, k in enumerate(have)}
 
     def heights(self, bank, which: Sequence[int], poses: Sequence, profile) -> list:
         """:meth:`NumpyEngine.heights` on the device (:func:`gelsim.scene_torch.sample_patches`): tensor rows."""
@@ -220,10 +252,15 @@ class TorchEngine:
             out[j] = r
         return out
 
-    @staticmethod
-    def to_host(frames):
-        """uint8 ``(B, H, W, 3)`` frames on the device, as a host array."""
-        return frames.cpu().numpy()
+    def to_host(self, frames):
+        """uint8 ``(B, H, W, 3)`` frames on the device, as a host array; with ``i420``, a list of
+        :class:`gelsim.video.I420` (converted here, on the device)."""
+        if not self.i420:
+            return frames.cpu().numpy()
+        from .video import I420
+        from .video_torch import rgb_to_i420
+
+        return [I420(p) for p in rgb_to_i420(frames).cpu().numpy()]
 
     def _tensor(self, x):
         import torch

@@ -97,6 +97,14 @@ class FabricObject:
         return heightfield(self.fabric, x0_mm=x0_mm, y0_mm=y0_mm, width_px=width_px, height_px=height_px,
                            mm_per_px=mm_per_px, seed=seed, rotation_deg=rotation_deg)
 
+    def heights_parts(self, x0_mm, y0_mm, width_px, height_px, mm_per_px, *, seed=0, rotation_deg=0.0):
+        """:meth:`heights`, or a rotated patch before its resampling
+        (:func:`gelsim.fabrics.render.heightfield_parts`: a device may finish it)."""
+        from .fabrics.render import heightfield_parts
+
+        return heightfield_parts(self.fabric, x0_mm=x0_mm, y0_mm=y0_mm, width_px=width_px, height_px=height_px,
+                                 mm_per_px=mm_per_px, seed=seed, rotation_deg=rotation_deg)
+
 
 def _grid(x0_mm, y0_mm, width_px, height_px, mm_per_px, center_mm, rotation_deg):
     """Coordinates (x row vector, y column vector, or full arrays when rotated) relative to
@@ -409,6 +417,21 @@ def _add_plane(out, ax, xs, ay, ys) -> None:
             row[j] = (row[j] + ax * xs[j]) + by
 
 
+@dataclass
+class PatchParts:
+    """:func:`travel_patch`'s patch before its last steps (:func:`travel_patch_parts`): ``heights`` a finished
+    float32 ``(h, w)`` array (mm) or a rotated fabric's :class:`gelsim.fabrics.render.RotatedHeights`; origin and
+    cell as :class:`HeightPatch`. :meth:`finish` makes the patch on the host (the same bytes as
+    :func:`travel_patch`); :func:`gelsim.scene_torch.PatchBank.from_patches` on a device."""
+    heights: object
+    origin_mm: tuple[float, float]
+    mm_per_px: float
+
+    def finish(self) -> HeightPatch:
+        h = self.heights
+        return HeightPatch(h if isinstance(h, np.ndarray) else h.finish(), self.origin_mm, self.mm_per_px)
+
+
 def travel_patch(obj: TouchedObject, motion, profile, mm_per_px: float, *, seed: int,
                  snap: bool = False, poses: tuple[np.ndarray, np.ndarray] | None = None) -> HeightPatch:
     """``obj``'s heights over the region the sensor's field sweeps in ``motion``, plus two cells, at
@@ -421,6 +444,23 @@ def travel_patch(obj: TouchedObject, motion, profile, mm_per_px: float, *, seed:
     circle (so any twist and tilt stay covered). ``snap``: put the origin on the object's own grid
     of ``mm_per_px`` cells (the physics grid: a max-pool then sees the same cells wherever the
     sensor goes)."""
+    x0, y0, w, h = _travel_region(motion, profile, mm_per_px, snap, poses)
+    hf = obj.heights(x0, y0, w, h, mm_per_px, seed=seed, rotation_deg=motion.fabric_rotation_deg)
+    return HeightPatch(np.asarray(hf, dtype=np.float32), (x0, y0), mm_per_px)
+
+
+def travel_patch_parts(obj: TouchedObject, motion, profile, mm_per_px: float, *, seed: int,
+                       poses: tuple[np.ndarray, np.ndarray] | None = None) -> PatchParts:
+    """:func:`travel_patch`'s patch, a rotated fabric's left before its resampling (``obj.heights_parts``, where the
+    object has one): what the host must make of it, the rest for a device (``--stages all``)."""
+    x0, y0, w, h = _travel_region(motion, profile, mm_per_px, False, poses)
+    parts = getattr(obj, "heights_parts", obj.heights)
+    hf = parts(x0, y0, w, h, mm_per_px, seed=seed, rotation_deg=motion.fabric_rotation_deg)
+    return PatchParts(np.asarray(hf, dtype=np.float32) if isinstance(hf, np.ndarray) else hf, (x0, y0), mm_per_px)
+
+
+def _travel_region(motion, profile, mm_per_px: float, snap: bool, poses) -> tuple[float, float, int, int]:
+    """:func:`travel_patch`'s region: its first pixel's centre (x0, y0) mm and its size (w, h) px."""
     fw, fh = profile.field_mm
     margin = 2 * mm_per_px
     if poses is not None:
@@ -449,8 +489,7 @@ def travel_patch(obj: TouchedObject, motion, profile, mm_per_px: float, *, seed:
         x0, y0 = xmin, ymin
         w = int(math.ceil((xmax - xmin) / mm_per_px)) + 1
         h = int(math.ceil((ymax - ymin) / mm_per_px)) + 1
-    hf = obj.heights(x0, y0, w, h, mm_per_px, seed=seed, rotation_deg=motion.fabric_rotation_deg)
-    return HeightPatch(np.asarray(hf, dtype=np.float32), (x0, y0), mm_per_px)
+    return x0, y0, w, h
 
 
 def physics_surface(obj: TouchedObject, motion, profile, *, seed: int):

@@ -45,9 +45,9 @@ import numpy as np
 from .contact import ContactFrames, Surface, simulate
 from .errors import GelsimError
 from .fidelity import Fidelity
-from .gel.twoscale import crown_envelope, texture_scale_mm
+from .gel.twoscale import crown_envelope, envelope_kernel_px, texture_scale_mm
 from .motion import Motion
-from .scene import PHYSICS_MM_PER_PX, HeightPatch, TouchedObject, as_object, physics_surface, press_properties, travel_patch  # noqa: F401
+from .scene import PHYSICS_MM_PER_PX, HeightPatch, TouchedObject, as_object, physics_surface, press_properties, travel_patch, travel_patch_parts  # noqa: F401
 from .sensor import SensorProfile
 from .stream import (NUMPY, FrameParts, FrameRecord, FrameRequest, FrameSetup, StageTimer, Touch, make_frames,
                      noise_generator)
@@ -108,13 +108,22 @@ def negligible_px(shear_mm, twist_deg: float, profile: SensorProfile) -> tuple[b
     return shear_px < NEGLIGIBLE_PX, twist_px < NEGLIGIBLE_PX
 
 
-def crown_envelope_patch(patch: HeightPatch | None, obj: TouchedObject, profile: SensorProfile,
-                         fidelity: Fidelity) -> HeightPatch | None:
-    """The crown envelope (:func:`gelsim.gel.twoscale.crown_envelope`) of ``patch``'s heights, on its grid;
-    None when no frame needs one (no patch, an object without texture, a model without the envelope)."""
+def crown_envelope_px(patch, obj: TouchedObject, profile: SensorProfile, fidelity: Fidelity) -> int | None:
+    """The side of the crown envelope's closing on ``patch``'s grid (:func:`gelsim.gel.twoscale.envelope_kernel_px`,
+    px); None when no frame needs an envelope (no patch, an object without texture, a model without the envelope)."""
     tex = texture_scale_mm(obj.texture_mm, profile.gel)
     if patch is None or tex is None or fidelity.imprint_model not in ("twoscale", "elastic"):
         return None
+    return envelope_kernel_px(tex, patch.mm_per_px)
+
+
+def crown_envelope_patch(patch: HeightPatch | None, obj: TouchedObject, profile: SensorProfile,
+                         fidelity: Fidelity) -> HeightPatch | None:
+    """The crown envelope (:func:`gelsim.gel.twoscale.crown_envelope`) of ``patch``'s heights, on its grid;
+    None when no frame needs one (:func:`crown_envelope_px`)."""
+    if crown_envelope_px(patch, obj, profile, fidelity) is None:
+        return None
+    tex = texture_scale_mm(obj.texture_mm, profile.gel)
     return HeightPatch(crown_envelope(patch.heights_mm, tex, patch.mm_per_px), patch.origin_mm, patch.mm_per_px)
 
 
@@ -122,14 +131,17 @@ class SequenceRun:
     """One sequence's frames, one at a time, for any engine: what :func:`render_sequences` keeps per sequence.
 
     Built once (the contact simulation, the object's image-resolution patch and its crown envelope, the nuisance,
-    the noise stream: their seconds in :attr:`seconds`), it gives each frame's pose and request
+    the noise stream: their seconds in :attr:`seconds`; with ``device_patch``, the patch's host part only,
+    :func:`gelsim.scene.travel_patch_parts`, and the envelope's side, :attr:`envelope_px`, both for the torch
+    engine to finish on its device), it gives each frame's pose and request
     (:meth:`request`: the :class:`gelsim.stream.Touch` with the sequence's shortcuts and warm start) and makes its
     record from what the pipeline made (:meth:`record`: the contact simulation's row of labels, then the
     pipeline's)."""
 
     def __init__(self, obj, motion: Motion, profile: SensorProfile, fidelity: Fidelity, *, seed: int,
-                 options: SequenceOptions = SequenceOptions()):
+                 options: SequenceOptions = SequenceOptions(), device_patch: bool = False):
         o = self.options = options
+        self.device_patch = device_patch
         self.obj = obj = as_object(obj)
         self.motion, self.profile, self.fidelity, self.seed, self.shortcuts = motion, profile, fidelity, seed, o.shortcuts
         contact = o.contact
@@ -149,12 +161,14 @@ class SequenceRun:
         touches = bool(np.any(contact.in_contact & (contact.normal_force_n > 0)))
         patch = o.patch
         if patch is None and self.want_imprint and (touches or not o.shortcuts):
-            patch = travel_patch(obj, motion, profile, profile.image.mm_per_px, seed=seed,
-                                 poses=(contact.position_mm, contact.yaw_deg))
+            make = travel_patch_parts if device_patch else travel_patch
+            patch = make(obj, motion, profile, profile.image.mm_per_px, seed=seed,
+                         poses=(contact.position_mm, contact.yaw_deg))
         self.patch = patch
         # The crown envelope of the object's texture is a property of the object, not of the pose: taken once
         # on the patch and seen through each frame's pose like the heights (press(envelope_mm=)).
-        self.envelope = crown_envelope_patch(patch, obj, profile, fidelity)
+        self.envelope_px = crown_envelope_px(patch, obj, profile, fidelity)
+        self.envelope = None if device_patch else crown_envelope_patch(patch, obj, profile, fidelity)
         timer.lap("fabric")
         self.nuisance = None
         if o.nuisance:
@@ -179,7 +193,8 @@ class SequenceRun:
         """This sequence from its first frame again, its contact simulation and patch reused (a benchmark's
         repetition: no physics)."""
         return SequenceRun(self.obj, self.motion, self.profile, self.fidelity, seed=self.seed,
-                           options=dataclasses.replace(self.options, contact=self.contact, patch=self.patch))
+                           options=dataclasses.replace(self.options, contact=self.contact, patch=self.patch),
+                           device_patch=self.device_patch)
 
     def touching(self, i: int) -> bool:
         """Frame ``i`` is pressed: in contact with a positive normal force."""
@@ -248,7 +263,8 @@ def render_sequences(sequences: Sequence, profile: SensorProfile, fidelity: Fide
     if len(sequences) > 1 and (o.contact is not None or o.surface is not None or o.patch is not None):
         raise GelsimError("a contact, surface or patch given in the options is one sequence's; run the sequences "
                           "one by one with it, or drop it")
-    runs = [s if isinstance(s, SequenceRun) else SequenceRun(*s[:2], profile, fidelity, seed=s[2], options=o)
+    runs = [s if isinstance(s, SequenceRun) else
+            SequenceRun(*s[:2], profile, fidelity, seed=s[2], options=o, device_patch=engine.device_patches)
             for s in sequences]
     want_frames = "frames" in o.outputs
     want_markers = want_frames or "markers" in o.outputs
@@ -257,8 +273,8 @@ def render_sequences(sequences: Sequence, profile: SensorProfile, fidelity: Fide
                             imprint_labels=runs[0].want_imprint, marker_labels=want_markers)
     timer = StageTimer(engine.clock)
     heights = engine.upload([r.patch for r in runs])
-    envelopes = engine.upload([r.envelope for r in runs])
-    timer.lap("fabric")                     # (the patches to the engine: on the torch engine, to its device)
+    envelopes = engine.crown_envelopes(heights, runs)
+    timer.lap("fabric")                     # (the patches to the engine: on the torch engine, made on its device)
     for step in range(max(r.num_frames for r in runs)):
         live = [k for k, r in enumerate(runs) if step < r.num_frames]
         pressing = [k for k in live if runs[k].pose(step) is not None]

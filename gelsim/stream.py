@@ -242,7 +242,8 @@ class FrameRecord:
 
     index: the frame's number in its sequence (from 0). touch: what pressed the gel (None: nothing was
     pressed, as before contact). imprint, markers, frame: :class:`FrameParts`'s (each None when not
-    computed; ``frame`` None also when a sink renders it, :class:`gelsim.sinks.DeviceFrames`). labels:
+    computed; ``frame`` None also when a sink renders it, :class:`gelsim.sinks.DeviceFrames`; from a torch engine
+    made with ``i420``, a :class:`gelsim.video.I420` that a video sink encodes as it is). labels:
     this frame's labels, keys and dtypes of :data:`gelsim.schema.LABELS` in their order: its pose and
     forces (the contact simulation's row: ``time_s`` ... ``twist_deg``), then the imprint's and the
     markers' labels when computed (``markers_rest_px``, the sequence's, in every frame). seconds: CPU

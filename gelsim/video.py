@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Literal
 
@@ -42,6 +43,19 @@ def video_path(stem: str | Path, fmt: VideoFormat) -> Path:
 def _tmp_name(path: Path) -> Path:
     # The suffix keeps the container type visible to libav (it picks the muxer by name).
     return partial_path(path, suffix=path.suffix)
+
+
+@dataclass(frozen=True)
+class I420:
+    """A frame already converted to the encoder's 4:2:0 planes: ``planes`` uint8 ``(3 H / 2, W)``, OpenCV's I420
+    layout (``cv2.COLOR_RGB2YUV_I420``'s; :func:`gelsim.video_torch.rgb_to_i420` makes it on a device).
+    :meth:`VideoWriter.write` takes it for an H.264 video of even size, skipping its own conversion."""
+    planes: np.ndarray
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """The frame's (H, W), px."""
+        return self.planes.shape[0] * 2 // 3, self.planes.shape[1]
 
 
 # Why VideoWriter keeps its own rename instead of gelsim.atomic.atomic_open: libav opens and muxes
@@ -132,16 +146,22 @@ class VideoWriter:
         self._frame.pts = None   # PyAV numbers a frame without pts itself, as it does a new one
         return self._frame
 
-    def write(self, frame: np.ndarray) -> None:
-        """Append one ``uint8 (H, W, 3)`` RGB frame."""
+    def write(self, frame: np.ndarray | I420) -> None:
+        """Append one ``uint8 (H, W, 3)`` RGB frame, or one already in I420 (:class:`I420`: an H.264 video of even
+        size only, whose encoder takes those planes as they are)."""
         import av
 
+        if isinstance(frame, I420):
+            h, w = frame.size
+            if self.fmt != "h264" or h % 2 or w % 2:   # (what _open encodes as yuv420p)
+                raise GelsimError(f"an I420 frame goes to an H.264 video of even size, not {self.fmt} at {h} x {w}; "
+                                  "give the frame as RGB")
+            self._check_size(frame.size)
+            self._encode(self._yuv_frame(frame.planes))
+            return
         if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
             raise GelsimError(f"video frames must be uint8 (H, W, 3), got {frame.dtype} {frame.shape}")
-        if self._shape is None:
-            self._open(*frame.shape[:2])
-        elif frame.shape[:2] != self._shape:
-            raise GelsimError(f"frame size changed from {self._shape} to {frame.shape[:2]} within one video")
+        self._check_size(frame.shape[:2])
         if self.fmt == "png":
             import cv2
 
@@ -161,8 +181,20 @@ class VideoWriter:
                 vf = self._yuv_frame(cv2.cvtColor(np.ascontiguousarray(frame), cv2.COLOR_RGB2YUV_I420))
             else:
                 vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
-            for packet in self._stream.encode(vf):
-                self._container.mux(packet)
+            self._encode(vf)
+            return
+        self.count += 1
+
+    def _check_size(self, size: tuple[int, int]) -> None:
+        """Open the video at the first frame's ``size`` (H, W); a later frame of another size is an error."""
+        if self._shape is None:
+            self._open(*size)
+        elif tuple(size) != self._shape:
+            raise GelsimError(f"frame size changed from {self._shape} to {tuple(size)} within one video")
+
+    def _encode(self, vf) -> None:
+        for packet in self._stream.encode(vf):
+            self._container.mux(packet)
         self.count += 1
 
     def close(self) -> Path:

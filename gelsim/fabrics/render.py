@@ -10,6 +10,7 @@ tiles the patch touches, and resampled bilinearly. Grid values depend only on
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -58,6 +59,49 @@ def _surface(fab: Fabric, u: np.ndarray, v: np.ndarray, key: int) -> np.ndarray:
     return s
 
 
+@dataclass(frozen=True)
+class RotatedHeights:
+    """A rotated patch before its last steps (what :func:`heightfield_parts` leaves to whoever finishes it: the
+    host here, :func:`gelsim.scene_torch.finish_rotated` on a device): the fabric's structure on the axis-aligned
+    grid of fabric-plane points ``((k0 + k) p, (l0 + l) p)`` (``src``, float32 ``(nl, nk)``, in units of the relief;
+    ``p`` the patch's mm per px), read bilinearly at output pixel (i, j)'s point ``U = c J + s I - k0``,
+    ``V = -s J + c I - l0`` (``J = j0 + j``, ``I = i0 + i``; :meth:`maps`), then scaled by ``relief_mm`` and cut at 0.
+    ``cos``, ``sin``: of the rotation; ``width_px``, ``height_px``: the patch's size."""
+    src: np.ndarray
+    j0: float
+    i0: float
+    width_px: int
+    height_px: int
+    cos: float
+    sin: float
+    k0: int
+    l0: int
+    relief_mm: float
+
+    def maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """The output pixels' positions on ``src``: (U, V), float32 ``(height_px, width_px)`` px each (float64
+        arithmetic, rounded once)."""
+        c, s = self.cos, self.sin
+        jj = self.j0 + np.arange(self.width_px, dtype=np.float64)
+        ii = self.i0 + np.arange(self.height_px, dtype=np.float64)
+        return (c * jj[None, :] + s * ii[:, None] - self.k0).astype(F32), \
+            (-s * jj[None, :] + c * ii[:, None] - self.l0).astype(F32)
+
+    def finish(self) -> np.ndarray:
+        """The patch's heights, mm, float32 ``(height_px, width_px)``: OpenCV's bilinear remap (edge replicated),
+        scaled and cut (what :func:`heightfield` returns)."""
+        map_u, map_v = self.maps()
+        out = cv2.remap(self.src, map_u, map_v, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return _relief(out, self.relief_mm)
+
+
+def _relief(s: np.ndarray, relief_mm: float) -> np.ndarray:
+    """Structure (units of the relief) to heights in mm >= 0, in place."""
+    s *= F32(relief_mm)
+    np.maximum(s, 0.0, out=s)
+    return s
+
+
 def heightfield(fabric: Fabric, *, x0_mm: float, y0_mm: float, width_px: int, height_px: int,
                 mm_per_px: float, seed: int = 0, rotation_deg: float = 0.0, _antialias: bool = True) -> np.ndarray:
     """Surface height of ``fabric`` in mm above its base plane, float32 ``(height_px, width_px)``.
@@ -71,6 +115,17 @@ def heightfield(fabric: Fabric, *, x0_mm: float, y0_mm: float, width_px: int, he
     At coarse resolutions (physics, 0.1-0.2 mm/px) each pixel is the mean of up to 4 x 4 sub-samples,
     so that yarn structure finer than the pixels averages out instead of aliasing into false patterns.
     """
+    out = heightfield_parts(fabric, x0_mm=x0_mm, y0_mm=y0_mm, width_px=width_px, height_px=height_px,
+                            mm_per_px=mm_per_px, seed=seed, rotation_deg=rotation_deg, _antialias=_antialias)
+    return out.finish() if isinstance(out, RotatedHeights) else out
+
+
+def heightfield_parts(fabric: Fabric, *, x0_mm: float, y0_mm: float, width_px: int, height_px: int,
+                      mm_per_px: float, seed: int = 0, rotation_deg: float = 0.0,
+                      _antialias: bool = True) -> np.ndarray | RotatedHeights:
+    """:func:`heightfield`'s heights, or for a rotated patch without sub-samples its :class:`RotatedHeights` (the
+    heights before their resampling, for a device to finish; ``finish()`` gives the same bytes as
+    :func:`heightfield`)."""
     if not (isinstance(width_px, (int, np.integer)) and isinstance(height_px, (int, np.integer))):
         raise GelsimError(f"width_px and height_px must be integers, got {width_px!r} x {height_px!r}")
     if not (0 < width_px <= _MAX_SIDE_PX and 0 < height_px <= _MAX_SIDE_PX):
@@ -98,10 +153,8 @@ def heightfield(fabric: Fabric, *, x0_mm: float, y0_mm: float, width_px: int, he
         v = (i0 + np.arange(height_px)) * mm_per_px
         s = _surface(fabric, u, v, key)
     else:
-        s = _rotated(fabric, j0, i0, width_px, height_px, mm_per_px, theta, key)
-    s *= F32(fabric.relief_mm)
-    np.maximum(s, 0.0, out=s)
-    return s
+        return _rotated(fabric, j0, i0, width_px, height_px, mm_per_px, theta, key)
+    return _relief(s, fabric.relief_mm)
 
 
 def supersampling(fabric: Fabric, mm_per_px: float) -> int:
@@ -114,7 +167,8 @@ def supersampling(fabric: Fabric, mm_per_px: float) -> int:
     return int(min(_MAX_SUPERSAMPLE, max(1, math.ceil(4.0 * mm_per_px / finest - 1e-9))))
 
 
-def _rotated(fab: Fabric, j0: float, i0: float, w: int, h: int, mpp: float, theta: float, key: int) -> np.ndarray:
+def _rotated(fab: Fabric, j0: float, i0: float, w: int, h: int, mpp: float, theta: float,
+             key: int) -> RotatedHeights:
     t = math.radians(theta)
     c, s = math.cos(t), math.sin(t)
     # Fabric-grid coordinates (in pixels) of the output pixels: U = c*J + s*I, V = -s*J + c*I.
@@ -141,9 +195,7 @@ def _rotated(fab: Fabric, j0: float, i0: float, w: int, h: int, mpp: float, thet
             u = (k0 + np.arange(tk, ke)) * mpp
             v = (l0 + np.arange(tl, le)) * mpp
             src[tl:le, tk:ke] = _surface(fab, u, v, key)
-    map_u = (c * jj[None, :] + s * ii[:, None] - k0).astype(F32)
-    map_v = (-s * jj[None, :] + c * ii[:, None] - l0).astype(F32)
-    return cv2.remap(src, map_u, map_v, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return RotatedHeights(src, j0, i0, w, h, c, s, k0, l0, fab.relief_mm)
 
 
 def _tile_needed(ka, kb, la, lb, c, s, ja, jb, ia, ib) -> bool:

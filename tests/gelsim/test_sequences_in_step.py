@@ -94,3 +94,27 @@ def test_no_tensor_is_made_off_the_batchs_device(two_sequences):
     finally:
         torch.set_default_device(None)
     assert n == sum(m.num_frames for _, m, _ in specs)
+
+
+def test_patches_made_on_the_device_move_the_labels_within_tolerance(two_sequences):
+    """Sequences whose patches the torch engine finishes itself (SequenceRun(device_patch=True): a rotated fabric's
+    resampling and the crown envelope on the device, as --stages all makes them) give the labels and frames of
+    those given host-made patches, within the device imprint's, markers' and optics' tolerances."""
+    from gelsim.sequence import SequenceRun
+
+    prof, fid, specs, prep = two_sequences
+    runs = [SequenceRun(obj, motion, prof, fid, seed=seed, options=SequenceOptions(contact=p.contact),
+                        device_patch=True) for (obj, motion, seed), p in zip(specs, prep)]
+    assert all(r.envelope is None and r.envelope_px for r in runs)
+    keep = [KeepFrames() for _ in runs]
+    renderer = BatchRenderer(Renderer(prof, "torch", seed=0, device="cpu"))
+    out = drain_each(render_sequences(runs, prof, fid, engine=TorchEngine("cpu"),
+                                      options=SequenceOptions(renderer=renderer)), [[k] for k in keep])
+    ref_labels, ref_frames = _in_step(prep, prof, fid, "cpu")
+    for (lab, _), ref, got, frames in zip(out, ref_labels, keep, ref_frames):
+        assert np.abs(lab["indentation_mm"] - ref["indentation_mm"]).max() <= TOLERANCE["indentation_mm"]
+        area = ref["contact_area_mm2"]
+        assert np.all(np.abs(lab["contact_area_mm2"] - area) <= TOLERANCE["area_rel"] * area + 1e-9)
+        assert np.abs(lab["markers_xy_px"] - ref["markers_xy_px"]).max() <= TOL_PX + 1e-4
+        diff = max(np.abs(a.astype(int) - b.astype(int)).max() for a, b in zip(got.frames, frames))
+        assert diff <= TOL_MAX_UINT8_DN, diff
