@@ -33,6 +33,7 @@ import numpy as np
 import scipy.fft
 
 from .errors import GelsimError
+from .optics.ops.resample import area_mean_box
 
 # Coarse-grid cells per gel thickness: the displacement fields vary over about one
 # thickness; six samples per thickness resolve them (the fields change by < 1% against
@@ -207,17 +208,18 @@ def _cell_means(depth: np.ndarray, mask: np.ndarray, box, window) -> np.ndarray:
     """The means of ``depth`` (mm) and ``mask`` over the cells of ``window`` = (f, r0, c0, hc, wc)
     (:func:`field_window`): float32 (2, hc, wc). Both are zero outside the touched ``box`` (x, y, width,
     height px), so only the cells that meet it are averaged (the window's margin of 4 reaches is not read);
-    the others are 0. Depth: OpenCV's INTER_AREA block means; mask: the blocks' counts (an integral image of the
-    bytes, no float copy of the mask) times 1/f^2 in float32, which is what INTER_AREA computes for 0/1."""
+    the others are 0. Depth: OpenCV's INTER_AREA block means (:func:`~gelsim.optics.ops.resample.area_mean_box`,
+    the same values as over the whole window); mask: the blocks' counts (an integral image of its bytes, no
+    float copy) times 1/f^2 in float32, which is what INTER_AREA computes for 0/1 values."""
     f, r0, c0, hc, wc = window
     bx, by, bw, bh = box
+    win = (slice(r0, r0 + hc * f), slice(c0, c0 + wc * f))
+    out = np.zeros((2, hc, wc), np.float32)
+    out[0] = area_mean_box(depth[win].astype(np.float32, copy=False), f, (by - r0, by + bh - r0, bx - c0, bx + bw - c0))
     i0, i1 = max(0, (by - r0) // f), min(hc, -(-(by + bh - r0) // f))
     j0, j1 = max(0, (bx - c0) // f), min(wc, -(-(bx + bw - c0) // f))
-    out = np.zeros((2, hc, wc), np.float32)
     if i1 > i0 and j1 > j0:
         sub = (slice(r0 + i0 * f, r0 + i1 * f), slice(c0 + j0 * f, c0 + j1 * f))
-        out[0, i0:i1, j0:j1] = cv2.resize(depth[sub].astype(np.float32, copy=False), (j1 - j0, i1 - i0),
-                                          interpolation=cv2.INTER_AREA)
         s = cv2.integral(mask[sub].view(np.uint8))[::f, ::f]      # int32 counts at the cells' corners
         counts = s[1:, 1:] - s[1:, :-1] - s[:-1, 1:] + s[:-1, :-1]
         np.multiply(counts, np.float32(1.0 / (f * f)), out=out[1, i0:i1, j0:j1], casting="unsafe")
