@@ -30,8 +30,10 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import scipy.fft
 
 from .errors import GelsimError
+from .optics.ops.resample import area_mean_box
 
 # Coarse-grid cells per gel thickness: the displacement fields vary over about one
 # thickness; six samples per thickness resolve them (the fields change by < 1% against
@@ -127,15 +129,16 @@ def _check_rest(rest, profile, seed):
 
 
 def _screened(fields: np.ndarray, ell_cells: float, pad: int) -> np.ndarray:
-    """The screened-Poisson potentials ``(lap - 1/l^2) Phi = field`` of ``fields`` (float32 or float64
-    ``(k, h, w)``; taken into the float64 padded grid), zero-padded by ``pad`` cells: float64 ``(k, h, w)``.
-    One FFT pair for the k fields (the same transforms, line for line, as one call each)."""
+    """The screened-Poisson potentials ``(lap - 1/l^2) Phi = field`` of ``fields`` (float32 ``(k, h, w)``) with
+    ``pad`` cells of zeros around them, solved as a circular convolution on that (h + 2 pad, w + 2 pad) grid
+    (the window in its corner: the same convolution, shifted): float32 ``(k, h, w)``. One FFT pair for the k
+    fields, in single precision (pocketfft's own float32 transforms: the potentials' gradients within about
+    4e-6 of their peak of the float64 solve's, the markers within 1e-4 px)."""
     k, h, w = fields.shape
-    big = np.zeros((k, h + 2 * pad, w + 2 * pad))
-    big[:, pad:pad + h, pad:pad + w] = fields
-    spec = np.fft.rfft2(big)
-    spec *= screen_multiplier(h + 2 * pad, w + 2 * pad, float(ell_cells))
-    return np.fft.irfft2(spec, s=big.shape[1:])[:, pad:pad + h, pad:pad + w]
+    grid = (h + 2 * pad, w + 2 * pad)
+    spec = scipy.fft.rfft2(fields, s=grid)
+    spec *= _screen_multiplier32(*grid, float(ell_cells))
+    return scipy.fft.irfft2(spec, s=grid)[:, :h, :w]
 
 
 @functools.lru_cache(maxsize=64)
@@ -147,6 +150,14 @@ def screen_multiplier(hp: int, wp: int, ell_cells: float) -> np.ndarray:
     mult = -1.0 / (qx * qx + qy * qy + 1.0 / (ell_cells * ell_cells))
     mult.flags.writeable = False
     return mult
+
+
+@functools.lru_cache(maxsize=64)
+def _screen_multiplier32(hp: int, wp: int, ell_cells: float) -> np.ndarray:
+    """:func:`screen_multiplier` in float32 (read-only, cached)."""
+    m = screen_multiplier(hp, wp, ell_cells).astype(np.float32)
+    m.flags.writeable = False
+    return m
 
 
 def _bilinear(field: np.ndarray, cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
@@ -193,6 +204,28 @@ def field_window(profile, box: tuple[int, int, int, int]) -> tuple[int, int, int
     return f, r0, c0, hc, wc
 
 
+def _cell_means(depth: np.ndarray, mask: np.ndarray, box, window) -> np.ndarray:
+    """The means of ``depth`` (mm) and ``mask`` over the cells of ``window`` = (f, r0, c0, hc, wc)
+    (:func:`field_window`): float32 (2, hc, wc). Both are zero outside the touched ``box`` (x, y, width,
+    height px), so only the cells that meet it are averaged (the window's margin of 4 reaches is not read);
+    the others are 0. Depth: OpenCV's INTER_AREA block means (:func:`~gelsim.optics.ops.resample.area_mean_box`,
+    the same values as over the whole window); mask: the blocks' counts (an integral image of its bytes, no
+    float copy) times 1/f^2 in float32, which is what INTER_AREA computes for 0/1 values."""
+    f, r0, c0, hc, wc = window
+    bx, by, bw, bh = box
+    win = (slice(r0, r0 + hc * f), slice(c0, c0 + wc * f))
+    out = np.zeros((2, hc, wc), np.float32)
+    out[0] = area_mean_box(depth[win].astype(np.float32, copy=False), f, (by - r0, by + bh - r0, bx - c0, bx + bw - c0))
+    i0, i1 = max(0, (by - r0) // f), min(hc, -(-(by + bh - r0) // f))
+    j0, j1 = max(0, (bx - c0) // f), min(wc, -(-(bx + bw - c0) // f))
+    if i1 > i0 and j1 > j0:
+        sub = (slice(r0 + i0 * f, r0 + i1 * f), slice(c0 + j0 * f, c0 + j1 * f))
+        s = cv2.integral(mask[sub].view(np.uint8))[::f, ::f]      # int32 counts at the cells' corners
+        counts = s[1:, 1:] - s[1:, :-1] - s[:-1, 1:] + s[:-1, :-1]
+        np.multiply(counts, np.float32(1.0 / (f * f)), out=out[1, i0:i1, j0:j1], casting="unsafe")
+    return out
+
+
 def displacement_fields(profile, fidelity, imprint, *, shear_mm=(0.0, 0.0), twist_deg: float = 0.0):
     """In-plane displacement on a coarse grid over the imprint, px.
 
@@ -219,14 +252,13 @@ def displacement_fields(profile, fidelity, imprint, *, shear_mm=(0.0, 0.0), twis
     f, r0, c0, hc, wc = field_window(profile, (bx, by, bw, bh))
     cell_mm = f * mmpp
     ell = gel.thickness_mm / cell_mm  # reach of the in-plane fields, cells
-    win = (slice(r0, r0 + hc * f), slice(c0, c0 + wc * f))
-    depth_c = cv2.resize(depth[win].astype(np.float32, copy=False), (wc, hc), interpolation=cv2.INTER_AREA)
-    mask_c = cv2.resize(mask[win].astype(np.float32), (wc, hc), interpolation=cv2.INTER_AREA)
+    cells = _cell_means(depth, mask, (bx, by, bw, bh), (f, r0, c0, hc, wc))
+    depth_c, mask_c = cells
     sx = sy = float(f)  # px per cell
     amp = 3.0 / (2.0 * gel.thickness_mm)  # surface displacement per unit depth-averaged flux, 1/mm
     if fidelity.marker_model == "elastic":
         pad = int(math.ceil(3 * ell))  # the screened kernel is < 5% of its peak beyond 3 l
-        phi, spread = _screened(np.stack([depth_c, mask_c]), ell, pad)
+        phi, spread = _screened(cells, ell, pad)
         gy, gx = np.gradient(phi * cell_mm * cell_mm, cell_mm)
         ux, uy = amp * gx, amp * gy
         spread = -spread
@@ -236,7 +268,12 @@ def displacement_fields(profile, fidelity, imprint, *, shear_mm=(0.0, 0.0), twis
         a = amp * gel.thickness_mm ** 2  # 3 l^2 / (2 h) with l = h, mm
         ux, uy = -a * gx, -a * gy
         spread = both[..., 1].astype(np.float64)
-    field = np.stack([ux, uy], axis=-1) / mmpp  # px
+    # The window with a ring of cells around it (filled below), px.
+    field = np.empty((hc + 2, wc + 2, 2))
+    core = field[1:-1, 1:-1]
+    core[..., 0] = ux
+    core[..., 1] = uy
+    core /= mmpp
     cx = cy = 0.0
     s_px = np.asarray(shear_mm, dtype=np.float64) / mmpp
     theta = math.radians(twist_deg)
@@ -246,24 +283,20 @@ def displacement_fields(profile, fidelity, imprint, *, shear_mm=(0.0, 0.0), twis
         weight = np.minimum(spread / ref, 1.0) if ref > 0 else np.zeros_like(spread)
         weight[inside] = 1.0
         wsum = float(mask_c.sum())
-        jj, ii = np.meshgrid(c0 + (np.arange(wc) + 0.5) * sx - 0.5, r0 + (np.arange(hc) + 0.5) * sy - 0.5)
-        cx = float((mask_c * jj).sum() / wsum) if wsum > 0 else (w - 1) / 2.0
-        cy = float((mask_c * ii).sum() / wsum) if wsum > 0 else (h - 1) / 2.0
+        xs = c0 + (np.arange(wc) + 0.5) * sx - 0.5  # the cells' centres, px
+        ys = (r0 + (np.arange(hc) + 0.5) * sy - 0.5)[:, None]
+        cx = float((mask_c * xs).sum() / wsum) if wsum > 0 else (w - 1) / 2.0
+        cy = float((mask_c * ys).sum() / wsum) if wsum > 0 else (h - 1) / 2.0
         c, s = math.cos(theta), math.sin(theta)
-        rx, ry = jj - cx, ii - cy
-        field[..., 0] += weight * (s_px[0] + (c - 1.0) * rx - s * ry)
-        field[..., 1] += weight * (s_px[1] + s * rx + (c - 1.0) * ry)
-    # A ring of cells around the window: zero inside the image (the fields have decayed),
-    # copied at the image's edges (the window reaches them).
-    field = np.pad(field, ((1, 1), (1, 1), (0, 0)), mode="edge")
-    if r0 > 0:
-        field[0] = 0.0
-    if c0 > 0:
-        field[:, 0] = 0.0
-    if r0 + hc * f < h:
-        field[-1] = 0.0
-    if c0 + wc * f < w:
-        field[:, -1] = 0.0
+        rx, ry = xs - cx, ys - cy
+        core[..., 0] += weight * (s_px[0] + (c - 1.0) * rx - s * ry)
+        core[..., 1] += weight * (s_px[1] + s * rx + (c - 1.0) * ry)
+    # The ring: zero inside the image (the fields have decayed), the edge cells' values at the
+    # image's edges (the window reaches them).
+    field[1:-1, 0] = 0.0 if c0 > 0 else core[:, 0]
+    field[1:-1, -1] = 0.0 if c0 + wc * f < w else core[:, -1]
+    field[0] = 0.0 if r0 > 0 else field[1]
+    field[-1] = 0.0 if r0 + hc * f < h else field[-2]
     return field, (sx, sy), (c0 - sx, r0 - sy), (cx, cy)
 
 

@@ -161,3 +161,21 @@ def test_custom_rest_and_bad_input(vitac, imprint):
         displace(vitac, BASE, imprint, shear_mm=(np.nan, 0.0))
     with pytest.raises(GelsimError):
         displace(vitac.with_resolution(480), BASE, imprint)
+
+
+def test_cell_means_over_the_touched_box_equal_the_whole_window(vitac, imprint):
+    """The block means are taken over the touched box's cells only: the same float32 values as OpenCV's
+    INTER_AREA over the whole window (the mask's from block counts), the margin's cells 0."""
+    import cv2
+
+    from gelsim.markers import _cell_means, field_window
+
+    depth, mask = imprint.depth_mm, imprint.contact_mask
+    box = cv2.boundingRect(((depth > 0) | mask).view(np.uint8))
+    f, r0, c0, hc, wc = field_window(vitac, box)
+    win = (slice(r0, r0 + hc * f), slice(c0, c0 + wc * f))
+    got = _cell_means(depth, mask, box, (f, r0, c0, hc, wc))
+    for k, full in enumerate((depth[win].astype(np.float32), mask[win].astype(np.float32))):
+        ref = cv2.resize(full, (wc, hc), interpolation=cv2.INTER_AREA)
+        assert ref.any() and ref.tobytes() == got[k].tobytes()
+    assert (got[:, 0] == 0).all() and (got[:, :, 0] == 0).all()   # the margin (a sphere well inside the image)

@@ -674,3 +674,20 @@ def test_lut_compose_hands_every_row_to_finish_once_in_order(small, monkeypatch)
         assert [a for a, _ in seen] == [0] + [b for _, b in seen[:-1]] and seen[-1][1] == bg.shape[0]
         assert len(seen) > bg.shape[0] // 11                      # rows above, in and below the box
         np.testing.assert_array_equal(got, whole)
+
+
+@pytest.mark.parametrize("f", [2, 3, 6])
+def test_area_mean_over_the_imprint_box_equals_the_whole_frame(f):
+    """resample.area_mean_box averages only the blocks that meet the box outside which the frame is 0: the
+    same float32 values as area_mean of the whole frame, blocks cut by the bottom and right edges included."""
+    from gelsim.optics.ops.resample import area_mean, area_mean_box
+
+    rng = np.random.default_rng(f)
+    h, w = 6 * f + 1, 9 * f + f - 1                              # not whole blocks
+    for extent in ((f + 1, 3 * f + 2, 2, 5 * f), (2, h, 3 * f - 1, w), (0, 1, 0, 1)):
+        x = np.zeros((h, w), np.float32)
+        r0, r1, c0, c1 = extent
+        x[r0:r1, c0:c1] = rng.uniform(0.0, 0.3, (r1 - r0, c1 - c0)).astype(np.float32)
+        ref = area_mean(x, f)
+        assert ref.any() and area_mean_box(x, f, extent).tobytes() == ref.tobytes()
+    assert area_mean_box(x, f, None).tobytes() == ref.tobytes()

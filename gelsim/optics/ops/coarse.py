@@ -17,7 +17,7 @@ import numpy as np
 
 from . import torch_module
 from .filters import mix_channels_torch, slopes, slopes_torch, smooth, smooth_torch
-from .resample import area_mean, area_mean_torch, upsample, upsample_torch
+from .resample import area_mean_box, area_mean_torch, upsample, upsample_torch
 
 # The depth and halo terms are smooth (the depth term follows the press's shape: a fabric's texture
 # changes it by about 0.1 DN), so they are computed on a coarse grid of about 0.125 mm, which the
@@ -68,15 +68,17 @@ def grid_positions(shape: tuple[int, int], mm_per_px: float, field_mm: tuple[flo
 
 
 def coarse_grid(depth: np.ndarray, mm_per_px: float, field_mm: tuple[float, float], depth_term: bool,
-                halo: dict | None, box=None, positions=None) -> tuple[np.ndarray, int]:
+                halo: dict | None, box=None, positions=None, extent=None) -> tuple[np.ndarray, int]:
     """The depth and halo terms' features on the coarse grid: float32 ``(h', w', k)``, ``k`` = 3 for the
     depth term's ``[d, d xn, d yn]`` if ``depth_term`` and 3 for the halo's ``[g db/dx, g db/dy, s]``
     if ``halo`` (a dict of ``halo_sigma_mm``, ``halo_base_mm``, ``halo_gate_mm``); and the grid's
     factor (:func:`coarse_factor`). ``depth``: the whole frame's imprint, mm; the gel continues past
     the image (replicated borders), as for the camera blur; ``box``: the table's ``position_box``
-    (:func:`clamp_positions`); ``positions``: :func:`grid_positions`' ``(xn, yn)`` if known."""
+    (:func:`clamp_positions`); ``positions``: :func:`grid_positions`' ``(xn, yn)`` if known; ``extent``: the
+    box outside which ``depth`` is 0 (:func:`~gelsim.optics.ops.box.imprint_extent`), if known: only its
+    blocks are averaged (:func:`area_mean_box`, the same values)."""
     f = coarse_factor(mm_per_px)
-    hg = area_mean(depth, f)
+    hg = area_mean_box(depth, f, extent)
     gmm = mm_per_px * f
     feats = []
     if depth_term:
@@ -104,21 +106,23 @@ def coarse_features(depth: np.ndarray, mm_per_px: float, field_mm: tuple[float, 
 
 
 def coarse_small(depth: np.ndarray, spec: CoarseSpec, mm_per_px: float, field_mm: tuple[float, float],
-                 positions=None) -> tuple[np.ndarray, int]:
+                 positions=None, extent=None) -> tuple[np.ndarray, int]:
     """The terms' colour change on the coarse grid: ``(small, f)``, float32 ``(h', w', 3)`` DN and the
-    grid's factor (not yet skipped below :data:`COARSE_SKIP_DN`); ``positions`` as for :func:`coarse_grid`."""
-    g, f = coarse_grid(depth, mm_per_px, field_mm, spec.depth_term, spec.halo, spec.box, positions)
+    grid's factor (not yet skipped below :data:`COARSE_SKIP_DN`); ``positions`` and ``extent`` as for
+    :func:`coarse_grid`."""
+    g, f = coarse_grid(depth, mm_per_px, field_mm, spec.depth_term, spec.halo, spec.box, positions, extent)
     hs, ws, k = g.shape
     return (g.reshape(-1, k) @ spec.rgb).reshape(hs, ws, 3), f
 
 
 def coarse_crop(depth: np.ndarray, spec: CoarseSpec, mm_per_px: float, field_mm: tuple[float, float],
-                positions=None):
+                positions=None, extent=None):
     """:func:`coarse_small` over the grid's box where the change is not zero, grown by one zero grid pixel,
     so that the crop's bilinear values equal those of the whole grid: ``(roi, crop, f)``, the crop
     (float32 ``(h', w', 3)`` DN) whose upsampling by ``f`` (:func:`upsample`) gives the change over
-    ``roi`` (cut to its size) of the frame; None where no pixel changes by :data:`COARSE_SKIP_DN`."""
-    small, f = coarse_small(depth, spec, mm_per_px, field_mm, positions)
+    ``roi`` (cut to its size) of the frame; None where no pixel changes by :data:`COARSE_SKIP_DN`.
+    ``positions`` and ``extent`` as for :func:`coarse_grid`."""
+    small, f = coarse_small(depth, spec, mm_per_px, field_mm, positions, extent)
     hs, ws = small.shape[:2]
     # |change| with a grid row's colours side by side: numpy's max along an axis of 3 took 0.75 ms
     # here (a loop per pixel), along rows of 3 ws values and down columns 0.04 ms
@@ -192,8 +196,9 @@ class CoarseTerm:
 
     def part(self, depth: np.ndarray, extent, margin_px: int, blur_sigma_px: float):
         """``(box, grid, factor)`` of :func:`coarse_crop` for imprint ``depth`` (float32 ``(H, W)`` mm), or None
-        (``extent``, ``margin_px`` and ``blur_sigma_px``: as for every term, unused here)."""
-        return coarse_crop(depth, self.spec, self.mm, self.field_mm, self._positions(depth.shape))
+        (``extent``: where ``depth > 0``, :func:`~gelsim.optics.ops.box.imprint_extent`, whose blocks alone are
+        averaged; ``margin_px`` and ``blur_sigma_px``: as for every term, unused here)."""
+        return coarse_crop(depth, self.spec, self.mm, self.field_mm, self._positions(depth.shape), extent)
 
     def part_torch(self, d, blur_sigma_px: float):
         """The change over whole frames: ``(B, 3, H, W)`` DN from imprints ``(B, H, W)`` mm."""

@@ -28,6 +28,27 @@ def area_mean(x: np.ndarray, f: int) -> np.ndarray:
     return cv2.resize(x, (ws, hs), interpolation=cv2.INTER_AREA)
 
 
+def area_mean_box(x: np.ndarray, f: int, extent) -> np.ndarray:
+    """:func:`area_mean` of ``x`` (float32 ``(h, w)``) that is zero outside ``extent`` = (row0, row1, col0,
+    col1), end exclusive (e.g. :func:`~gelsim.optics.ops.box.imprint_extent`; None: the whole of ``x``): only
+    the blocks that meet it are averaged, the others are 0. The same values as :func:`area_mean`: OpenCV's
+    INTER_AREA by a whole factor sums each block on its own, in the same order wherever it lies, and a block
+    cut by the bottom or right edge is zero-padded in both; but by 2 it is vector code with a scalar tail at
+    the row's end (a block's rounding depends on where it falls in the row: tested), so there whole rows are
+    averaged."""
+    if extent is None or f == 1:
+        return area_mean(x, f)
+    h, w = x.shape[:2]
+    hs, ws = -(-h // f), -(-w // f)
+    r0, r1, c0, c1 = extent
+    i0, i1 = max(0, r0 // f), min(hs, -(-r1 // f))
+    j0, j1 = (0, ws) if f == 2 else (max(0, c0 // f), min(ws, -(-c1 // f)))
+    out = np.zeros((hs, ws), np.float32)
+    if i1 > i0 and j1 > j0:
+        out[i0:i1, j0:j1] = area_mean(x[i0 * f:min(h, i1 * f), j0 * f:min(w, j1 * f)], f)
+    return out
+
+
 def upsample(grid: np.ndarray, f: int, shape: tuple[int, int]) -> np.ndarray:
     """Bilinear from a grid of ``f``-pixel blocks to ``shape`` (H, W), edges replicated (``grid`` itself for
     ``f == 1``): the grid upsampled ``f`` times, then cut to ``shape``."""

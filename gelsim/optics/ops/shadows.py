@@ -20,7 +20,7 @@ from ...errors import GelsimError
 from . import torch_module
 from .box import grow_extent
 from .filters import mix_channels, mix_channels_torch, smooth, smooth_torch
-from .resample import area_mean, area_mean_torch, upsample, upsample_torch
+from .resample import area_mean, area_mean_box, area_mean_torch, upsample, upsample_torch
 
 # Shadows vary over several pixels (the ball's rim is blurred by the gel), so they are
 # computed at half resolution: 4x fewer pixels, no visible change (checked in the tests).
@@ -134,10 +134,11 @@ def occlusion(depth: np.ndarray, mm_per_px: float, dir_deg: float, tan_e: float,
 
 
 def occlusion_factors(depth: np.ndarray, mm_per_px: float, dirs_deg, tans, sat_mm: float,
-                      factor: int) -> np.ndarray | None:
+                      factor: int, extent=None) -> np.ndarray | None:
     """Unblurred shadow darkness ``o_k / (o_k + sat_mm)`` per direction on the grid: float32 ``(h', w', K)``;
-    None when no direction casts any shadow."""
-    hg = area_mean(depth, factor)
+    None when no direction casts any shadow. ``extent``: the box of ``depth`` outside which it is 0, if known
+    (only its blocks are averaged: :func:`~gelsim.optics.ops.resample.area_mean_box`, the same values)."""
+    hg = area_mean_box(depth, factor, extent)
     slopes = grid_slopes(hg)
     sat = float(sat_mm)
     chans, lit = [], False
@@ -183,13 +184,13 @@ def shadow_factors(depth: np.ndarray, mm_per_px: float, dirs_deg, tans, sat_mm: 
     return f, to_full
 
 
-def shadow_grid(d: np.ndarray, spec: ShadowSpec, mm_per_px: float, extra_blur_px: float):
+def shadow_grid(d: np.ndarray, spec: ShadowSpec, mm_per_px: float, extra_blur_px: float, extent=None):
     """The shadows' colour change of imprint ``d`` (float32 mm; the box they fall in, 0 beyond it) on
     the grid, blurred by the penumbra and by ``extra_blur_px`` (sigma, full-resolution px):
     ``(small, factor)`` with float32 ``(h', w', 3)`` DN to be upsampled by ``factor`` (:func:`upsample`);
-    None where no LED casts a shadow."""
+    None where no LED casts a shadow. ``extent``: as for :func:`occlusion_factors`."""
     factor = grid_factor(SHADOW_SCALE)
-    f = occlusion_factors(d, mm_per_px, spec.dirs_deg, spec.tan, spec.sat_mm, factor)
+    f = occlusion_factors(d, mm_per_px, spec.dirs_deg, spec.tan, spec.sat_mm, factor, extent)
     if f is None or not f.any():
         return None
     small = mix_channels(f, spec.mix).reshape(f.shape[0], f.shape[1], 3)
@@ -281,7 +282,9 @@ class ShadowTerm:
         roi = grow_extent(extent, margin_px, depth.shape)
         _, dmax, _, _ = cv2.minMaxLoc(depth[roi])
         big = grow_extent(extent, margin_px + self.spec.reach_px(dmax, self.mm, blur_sigma_px), depth.shape)
-        g = shadow_grid(depth[big], self.spec, self.mm, blur_sigma_px)
+        r0, c0 = big[0].start, big[1].start   # where depth > 0, in the box's own coordinates
+        g = shadow_grid(depth[big], self.spec, self.mm, blur_sigma_px,
+                        (extent[0] - r0, extent[1] - r0, extent[2] - c0, extent[3] - c0))
         return big, None if g is None else g[0], self.factor
 
     def part_torch(self, d, blur_sigma_px: float):
