@@ -400,20 +400,31 @@ def simulate(motion: Motion, surface: Surface, profile: SensorProfile, fidelity:
     n_steps = int(frame_step[-1]) + 1
     ctrl = _plan(motion, dt, n_steps, i_contact, frame_t[-1] - t_c, x_start, y_start, v_app, tremor)
 
-    n_prev = max(0.0, float(data.qfrc_constraint[bz_dof]))
+    # The loop's Python runs 33 times a frame around a 30 us step: MjData's arrays are bound once (each
+    # attribute read makes a new numpy view), and the state is logged only at the steps the frames read
+    # (qlog and vlog are read at frame_step alone; flog and clog at every step, by the exposure windows).
+    step, d_ctrl, d_qpos, d_qvel, d_qfrc = mujoco.mj_step, data.ctrl, data.qpos, data.qvel, data.qfrc_constraint
+    logged = np.zeros(n_steps, dtype=bool)
+    logged[frame_step] = True
+    logged = logged.tolist()
+    rows = list(ctrl)                        # (row views: indexing a list is cheaper than the array)
+    last = n_steps - 1
+    n_prev = max(0.0, float(d_qfrc[bz_dof]))
     for i in range(i_contact + 1, n_steps):
-        data.ctrl[:] = ctrl[i]
+        d_ctrl[:] = rows[i]
         f_lim = mu * n_prev
         ten_fl[ten_x] = f_lim
         ten_fl[ten_y] = f_lim
         dof_fl[dof_pyaw] = f_lim * r_eff
-        qlog[i] = data.qpos
-        vlog[i] = data.qvel
-        mujoco.mj_step(model, data)
-        flog[i] = data.qfrc_constraint
+        if logged[i]:
+            qlog[i] = d_qpos
+            vlog[i] = d_qvel
+        step(model, data)
+        flog[i] = d_qfrc
         clog[i] = data.ncon > 0
-        n_prev = max(0.0, float(flog[i, bz_dof]))
-        if i % check_every == 0 or i == n_steps - 1:
+        f_n = float(d_qfrc[bz_dof])
+        n_prev = f_n if f_n > 0.0 else 0.0   # max(0.0, f_n), NaN and -0.0 included, without the call
+        if i % check_every == 0 or i == last:
             _check_stable(model, data, i * dt, warn_ids, qa, profile)
 
     # Exposure window of each frame: the steps (i_k - w, i_k], none before the first touch for
