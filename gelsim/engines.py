@@ -145,6 +145,13 @@ class NumpyEngine:
             return depth
         return dents_mm if depth is None else depth + dents_mm
 
+    @staticmethod
+    def render_extent(imprint: Imprint | None, dents_mm: np.ndarray | None) -> tuple[int, int, int, int] | None:
+        """The box where :meth:`render_depth` is positive, ``(row0, row1, col0, col1)``, where it is the imprint's
+        own depth (its :attr:`~gelsim.gel.Imprint.depth_extent`, the markers' too); None otherwise (with dents
+        the optics find it themselves)."""
+        return None if imprint is None or dents_mm is not None else imprint.depth_extent
+
 
 @dataclass
 class TorchImprints:
@@ -372,3 +379,8 @@ class TorchEngine:
             return depth
         dents = self._tensor(dents_mm)
         return dents if depth is None else depth + dents
+
+    @staticmethod
+    def render_extent(imprint: Imprint | None, dents_mm: np.ndarray | None) -> None:
+        """None: the batch renderer finds its frames' boxes on the device (:meth:`NumpyEngine.render_extent`)."""
+        return None

@@ -18,15 +18,16 @@ def contact_location(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     pixels' edges, so a single pixel at column 5 spans x 4.5-5.5; both NaN when the mask is empty.
     """
     m = np.ascontiguousarray(mask).view(np.uint8)
-    # Column and row counts by cv2.reduce: 0.16 ms in all at 960x720, against 1.4 ms for cv2.moments.
+    # Column and row counts by cv2.reduce: 0.16 ms in all at 960x720, against 1.4 ms for cv2.moments. The box
+    # is read off the counts (their first and last nonzero), not found by a third pass over the mask.
     cols = cv2.reduce(m, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel().astype(np.float64)
     n = cols.sum()
     if n == 0:
         return np.full(2, np.nan), np.full(4, np.nan)
     rows = cv2.reduce(m, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel().astype(np.float64)
-    x, y, w, h = cv2.boundingRect(m)
+    xs, ys = np.flatnonzero(cols), np.flatnonzero(rows)
     return (np.array([cols @ np.arange(cols.size) / n, rows @ np.arange(rows.size) / n]),
-            np.array([x - 0.5, y - 0.5, x + w - 0.5, y + h - 0.5]))
+            np.array([xs[0] - 0.5, ys[0] - 0.5, xs[-1] + 0.5, ys[-1] + 0.5]))
 
 
 def contact_location_torch(mask):

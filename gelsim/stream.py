@@ -199,9 +199,11 @@ def make_frames(requests: Sequence[FrameRequest], setup: FrameSetup, engine=NUMP
                 labels[b]["contact_bbox_px"] = where[1].astype(np.float32)
     if setup.imprint_labels or setup.marker_labels:
         timer.lap("labels")
-    optics = [OpticsInput(engine.render_depth(imprint[b], None if nuisance[b] is None else nuisance[b].dents_mm),
+    dents = [None if nu is None else nu.dents_mm for nu in nuisance]
+    optics = [OpticsInput(engine.render_depth(imprint[b], dents[b]),
                           None if markers is None else engine.render_markers(markers, b),
-                          None if nuisance[b] is None else nuisance[b].gains, r.seed, r.noise)
+                          None if nuisance[b] is None else nuisance[b].gains, r.seed, r.noise,
+                          engine.render_extent(imprint[b], dents[b]))
               for b, r in enumerate(requests)]
     frames = None
     if setup.renderer is not None:

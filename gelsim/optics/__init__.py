@@ -152,8 +152,10 @@ class Renderer:
         cache (:meth:`Shader.compose`'s ``finish``): the frame's float32 copy is then never written to
         memory (8 MB at 960x720)."""
         depth = check_depth(inputs.depth_mm, self._shape)
+        extent = inputs.extent                       # (check_depth's clipping keeps the positive pixels)
         if depth is not None and self.supersample > 1:
             depth = upsample(depth, self.supersample, self._fine_shape[:2])
+            extent = None                            # (a box of the output pixels, not of the fine ones)
         stages = self.stages if final else [st for st in self.stages if not st.final]
         draws = {}
         if final:
@@ -177,12 +179,12 @@ class Renderer:
 
                 # bands finished as they are composed need no frame: the shader composes them in a
                 # band-sized buffer, and the frame buffer keeps what it held (the flat gel, say)
-                if self.shader.compose(None, bg, depth, blur_radius_px(sigma), sigma, gaussian_blur, band):
+                if self.shader.compose(None, bg, depth, blur_radius_px(sigma), sigma, gaussian_blur, band, extent):
                     st, state = active[-1]           # the readout
                     return st.result(state)
             else:
                 frame = self._work("frame", bg.shape)
-                if self.shader.compose(frame, bg, depth, blur_radius_px(sigma), sigma, gaussian_blur):
+                if self.shader.compose(frame, bg, depth, blur_radius_px(sigma), sigma, gaussian_blur, None, extent):
                     self._flat = None                # the frame buffer holds shading now
                     return self._apply(frame, True, active)
         return self._apply_flat(active)

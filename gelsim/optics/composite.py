@@ -138,12 +138,16 @@ class OpticsInput:
     batch renderer's :meth:`~gelsim.optics.torch_backend.BatchRenderer.frames`); ``markers``: an object with
     ``.corners_px`` float32 ``(N, 4, 2)`` px, such an array, or None; ``gains``: the camera's per-channel gains
     ``(3,)`` (:class:`CameraGains`) or None (all 1); ``seed``: where the frame's random draws come from (an
-    int, or the sequence's Generator, drawn from in frame order); ``noise``: False for a noiseless frame."""
+    int, or the sequence's Generator, drawn from in frame order); ``noise``: False for a noiseless frame;
+    ``extent``: the box where ``depth_mm > 0`` (:func:`~gelsim.optics.ops.box.imprint_extent`) where its maker has
+    it (the imprint's :attr:`~gelsim.gel.Imprint.depth_extent`, read by the markers too), None where not given (the
+    shader finds it)."""
     depth_mm: Any = None
     markers: Any = None
     gains: Any = None
     seed: int | np.random.Generator = 0
     noise: bool = True
+    extent: tuple[int, int, int, int] | None = None
 
 
 @dataclass

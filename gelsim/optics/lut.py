@@ -297,11 +297,13 @@ class LutShader(Shader):
         self.margin_px = MARGIN_PX
         self._bufs: dict[str, np.ndarray] = {}
 
-    def term_parts(self, depth_mm: np.ndarray, margin_px: int, blur_sigma_px: float):
+    def term_parts(self, depth_mm: np.ndarray, margin_px: int, blur_sigma_px: float, extent=None):
         """``(roi, parts)``: the table's box (None for a flat gel) and the terms' ``(box, grid, factor)``
-        (:attr:`terms`' ``part``, in their order; ``grid`` None where a term adds nothing in its box)."""
+        (:attr:`terms`' ``part``, in their order; ``grid`` None where a term adds nothing in its box).
+        ``extent``: :func:`imprint_extent` of ``depth_mm`` where the caller has it (None: found here)."""
         margin = self.margin_px + margin_px
-        extent = imprint_extent(depth_mm)
+        if extent is None:
+            extent = imprint_extent(depth_mm)
         roi = grow_extent(extent, margin, depth_mm.shape)
         if roi is None:
             return None, []
@@ -342,7 +344,7 @@ class LutShader(Shader):
             [(box, upsample(grid, f, _box_shape(box)), True) for box, grid, f in parts if grid is not None]
 
     def compose(self, frame: np.ndarray, bg: np.ndarray, depth_mm: np.ndarray, margin_px: int,
-                blur_sigma_px: float, blur, finish=None) -> bool:
+                blur_sigma_px: float, blur, finish=None, extent=None) -> bool:
         """The renderer's fused pass: ``frame = bg + blur(table change) + terms`` (float32 ``(H, W, 3)``
         DN, written in place); False (``frame`` untouched) for a flat gel.
 
@@ -358,7 +360,7 @@ class LutShader(Shader):
         order, while the band is in the cache: the renderer applies its stages there (markers, noise,
         quantisation; see :meth:`Shader.compose`). With ``finish`` and ``frame`` None the bands are
         composed in one band-sized work buffer: the frame's 8 MB float32 copy is never written to memory."""
-        roi, parts = self.term_parts(depth_mm, margin_px, blur_sigma_px)
+        roi, parts = self.term_parts(depth_mm, margin_px, blur_sigma_px, extent)
         if roi is None:
             return False
         # (box, grid, factor) of the changes added after the table's: each band interpolates its own rows

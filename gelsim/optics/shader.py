@@ -79,7 +79,8 @@ class Shader(ABC):
 
     def compose(self, frame: np.ndarray, bg: np.ndarray, depth_mm: np.ndarray, margin_px: int,
                 blur_sigma_px: float, blur: Callable[..., np.ndarray],
-                finish: Callable[[np.ndarray, int, int], None] | None = None) -> bool:
+                finish: Callable[[np.ndarray, int, int], None] | None = None,
+                extent: tuple[int, int, int, int] | None = None) -> bool:
         """Write ``bg + blur(change)`` into ``frame`` (both float32 ``(H, W, 3)`` DN); False, with ``frame``
         untouched, for a flat gel. ``blur(img, sigma_px, dst)`` is the camera blur. ``finish(rows, y0, y1)``
         (optional, only if True is returned): called once per band of frame rows ``y0:y1`` whose values
@@ -87,7 +88,9 @@ class Shader(ABC):
         covering the frame (the renderer runs its stages there: markers, noise, quantisation;
         :mod:`gelsim.optics.composite`). With ``finish``,
         ``frame`` may be None: the rows are then written to work buffers of the shader's own and exist
-        only as handed to ``finish``. Default: the :meth:`parts`, each blurred unless it says it is,
+        only as handed to ``finish``. ``extent``: the box where ``depth_mm > 0``
+        (:func:`~gelsim.optics.ops.box.imprint_extent`) where the caller has it, so that a shader need not
+        find it again (None: not given; the default does not read it). Default: the :meth:`parts`, each blurred unless it says it is,
         added to the background, then one ``finish`` of the whole frame."""
         parts = self.parts(depth_mm, margin_px, blur_sigma_px)
         if parts is None:
