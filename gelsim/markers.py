@@ -244,12 +244,11 @@ def displacement_fields(profile, fidelity, imprint, *, shear_mm=(0.0, 0.0), twis
     if depth.shape != (h, w) or mask.shape != (h, w):
         raise GelsimError(f"imprint is {depth.shape}, the profile's image is {(h, w)}; "
                           "press with the same profile")
-    boxes = [b for b in (imprint.depth_extent, imprint.contact_extent) if b is not None]
-    if not boxes:
+    touched = imprint.touched_extent
+    if touched is None:
         return None
-    # the box of the touched pixels (depth > 0 or contact): the union of the imprint's two boxes, (x, y, w, h)
-    bx, by = min(b[2] for b in boxes), min(b[0] for b in boxes)
-    bw, bh = max(b[3] for b in boxes) - bx, max(b[1] for b in boxes) - by
+    by, bx = touched[0], touched[2]
+    bh, bw = touched[1] - by, touched[3] - bx
     f, r0, c0, hc, wc = field_window(profile, (bx, by, bw, bh))
     cell_mm = f * mmpp
     ell = gel.thickness_mm / cell_mm  # reach of the in-plane fields, cells

@@ -59,9 +59,8 @@ class Imprint:
     state: the model's solution (two-scale: its macro solve, which warm-starts the next frame,
         ``press(warm=)``; elastic: its pressure), or None.
 
-    Its boxes, :attr:`depth_extent` and :attr:`contact_extent`, are found on first use and kept (the markers,
-    the optics and the labels read them: a scan of the frame each, 0.05-0.09 ms at 960x720, made once). The
-    arrays are not to be modified once the imprint is made.
+    Its boxes, :attr:`depth_extent` (the optics') and :attr:`touched_extent` (the markers'), are found on first
+    use and kept: one pass over the frame for both. The arrays are not to be modified once the imprint is made.
     """
     depth_mm: np.ndarray
     contact_mask: np.ndarray
@@ -78,10 +77,16 @@ class Imprint:
         return bbox(np.asarray(self.depth_mm) > 0)
 
     @functools.cached_property
-    def contact_extent(self) -> tuple[int, int, int, int] | None:
-        """``(row0, row1, col0, col1)``, end exclusive, of the pixels of ``contact_mask``; None if there are none
-        (found once)."""
-        return bbox(np.asarray(self.contact_mask))
+    def touched_extent(self) -> tuple[int, int, int, int] | None:
+        """``(row0, row1, col0, col1)``, end exclusive, of the pixels where ``depth_mm > 0`` or in
+        ``contact_mask`` (the markers' window); None if there are none. Found once, in the same pass as
+        :attr:`depth_extent` when that is not known yet (the first pass over the frame pays for bringing it into
+        the cache: a second one is cheap)."""
+        touched = np.asarray(self.depth_mm) > 0
+        if "depth_extent" not in self.__dict__:
+            self.__dict__["depth_extent"] = bbox(touched)     # (as functools.cached_property keeps it)
+        touched |= np.asarray(self.contact_mask)
+        return bbox(touched)
 
     def pressure_mpa(self) -> np.ndarray | None:
         """The contact pressure at the image's resolution (MPa, float32, shaped like depth_mm): the

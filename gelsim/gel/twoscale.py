@@ -416,7 +416,7 @@ def press_twoscale(work: np.ndarray, dx: float, gel, *, force_n: float | None, d
     force = float(p.sum() * area)
     state = MacroState(key, p, (r0, c0), f, (ny, nx), bottomed, force, sol.contact_exponent)
     mask = np.zeros((ny, nx), bool)
-    cb = bbox(p > 0)
+    # (cb: the loop's last box, that of this p > 0)
     if cb is None:
         return np.zeros((ny, nx), np.float32), mask, delta, force, bottomed, state
     # 3. The gel's displacement around the patch: one more convolution over a padded window.
