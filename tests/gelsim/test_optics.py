@@ -536,6 +536,36 @@ def test_lut_path_matches_plain_reference(small, scene):
         assert (grid is not None) == (scene != "gentle weave")
 
 
+@pytest.mark.parametrize("width", [320, 640, 960])
+def test_shadow_grid_is_as_coarse_as_the_penumbra_allows(width, monkeypatch):
+    """The shadows' grid (ShadowSpec.grid_factor) on the steepest shadows, a 1 mm ball 0.6 mm deep and a
+    steep weave: on the chosen grid they are within SHADOW_GRID_TOL_DN of the full-resolution ones, on the
+    next coarser grid they are not (the rule is about as coarse as the tolerance allows, and no coarser)."""
+    from gelsim.optics.lut import table_model
+    from gelsim.optics.ops import shadows
+    from gelsim.optics.ops.resample import upsample
+    from gelsim.sensor import load_profile
+
+    prof = load_profile("vitac").with_resolution(width)
+    spec, mm = table_model(prof).shadows, prof.image.mm_per_px
+    f = spec.grid_factor(mm)
+    assert spec.soft_mm / mm / f >= shadows.SHADOW_GRID_MIN_SIGMA
+    assert (f == 1) == (width == 320) and (f >= 4) == (width == 960)   # finer frames, finer grids
+
+    def term(d, factor):
+        monkeypatch.setattr(shadows.ShadowSpec, "grid_factor", lambda self, mm_per_px: factor)
+        g = shadows.shadow_grid(d, spec, mm, prof.camera.blur_sigma_px)
+        return np.zeros(d.shape + (3,), np.float32) if g is None else upsample(g[0], g[1], d.shape)
+
+    chosen_err, coarser_err = 0.0, 0.0
+    for d in (sphere_dent(prof, 1.0, 0.6, center_mm=(1.3, -0.7)), _weave(prof, 0.12, 0.1)):
+        exact = term(d, 1)
+        assert np.abs(exact).max() > 1.5                                # both cast shadows
+        chosen_err = max(chosen_err, float(np.abs(term(d, f) - exact).max()))
+        coarser_err = max(coarser_err, float(np.abs(term(d, 2 * f) - exact).max()))
+    assert chosen_err <= shadows.SHADOW_GRID_TOL_DN < coarser_err, (chosen_err, coarser_err)
+
+
 def test_banded_pass_equals_one_pass_over_the_box(small, monkeypatch):
     """Row bands with the blur's and the gradient's extra rows reproduce one pass over the box."""
     from gelsim.optics.lut import LutShader
