@@ -399,9 +399,9 @@ def test_background_image_replaces_parametric_field(tmp_path, small):
 def _reference_lut_frame(renderer, depth):
     """The calibrated shading computed the straightforward way, in float64: Sobel slopes, the unit
     normal, a bilinear lookup of the 9-channel table with the exact per-pixel [1, xn, yn] weights,
-    the camera blur; shadows on their grid (f x f blocks, ShadowSpec.grid_factor) by a brute-force max over every step s = 1, 2, ...
-    along each LED's direction (bilinear samples, 0 outside), o / (o + sat), a Gaussian penumbra
-    (camera blur folded in), mixed to colour and interpolated back bilinearly. No tiles, bands,
+    the camera blur; shadows on their grid (f x f blocks, ShadowSpec.grid_factor) by a brute-force max
+    over every step s = 1, 2, ... along each LED's direction (bilinear samples, 0 outside), o / (o + sat), a
+    Gaussian penumbra (camera blur folded in), mixed to colour and interpolated back bilinearly. No tiles, bands,
     window doubling or fixed-point maps. Returns float32 (H, W, 3) DN without markers."""
     from scipy import ndimage
 

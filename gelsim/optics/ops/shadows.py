@@ -60,8 +60,9 @@ class ShadowSpec:
     def grid_factor(self, mm_per_px: float) -> int:
         """Full-resolution pixels per grid pixel of the shadows at ``mm_per_px``: the coarsest power of two
         keeping the penumbra at least :data:`SHADOW_GRID_MIN_SIGMA` grid pixels wide and its interpolation
-        error (:data:`SHADOW_GRID_MODEL_MARGIN` times ``step_dn phi(1) / (8 sigma^2)``) within :data:`SHADOW_GRID_TOL_DN` (see there); 1 for
-        hard-edged shadows. 4 at 960x720 on the R1.5 table (sigma 1.27 grid px), 2 at 640x480, 1 at 320x240."""
+        error (:data:`SHADOW_GRID_MODEL_MARGIN` times ``step_dn phi(1) / (8 sigma^2)``) within
+        :data:`SHADOW_GRID_TOL_DN` (see there); 1 for hard-edged shadows. On the R1.5 table: 4 at 960x720
+        (sigma 1.27 grid px), 2 at 640x480, 1 at 320x240."""
         curvature = math.exp(-0.5) / math.sqrt(2.0 * math.pi)          # phi(1)
         sigma_px = self.soft_mm / mm_per_px
 
