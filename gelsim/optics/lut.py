@@ -24,7 +24,7 @@ s u_k) - h(p) - s tan(e_k)))`` (mm, ``h`` the imprint height, ``u_k`` the direct
 towards the light) is how far the surface towards the light rises above the grazing
 ray; the darkness ``o_k / (o_k + o_sat)`` is blurred by a Gaussian penumbra of
 ``soft`` mm (extended LEDs, a scattering membrane) and the colour change adds
-``sum_k S_k`` times it, on a half-resolution grid (:mod:`gelsim.optics.ops.shadows`).
+``sum_k S_k`` times it, on a grid as coarse as the penumbra allows (:mod:`gelsim.optics.ops.shadows`).
 
 Two optional terms beyond the normal (both fitted with the table, both zero on a flat gel):
 
@@ -244,13 +244,15 @@ def table_model(profile, table: dict | None = None) -> TableModel:
     # tiles or the exact lookup (MOSAIC_MAX_ERR_DN): decided on the table as fitted, so that a unit's
     # gains (gelsim.units) or another gain_dn never switch between them
     spatial_dn = (float(np.abs(t["table"][..., 3:6]).max()), float(np.abs(t["table"][..., 6:9]).max()))
+    # the shadows' grid likewise (ShadowSpec.grid_factor): from their colours as fitted
+    shadow_dn = float(np.abs(t["shadow_rgb"]).max()) if "shadow_rgb" in t else 0.0
     t = adjust_channels(t, profile.shading.channel_gain, profile.shading.channel_rotation_deg)
     tab = t["table"] * gain
     box = t.get("position_box")
     shadows = None
     if "shadow_rgb" in t:
         shadows = ShadowSpec(t["shadow_dirs_deg"], t["shadow_tan"], np.ascontiguousarray((t["shadow_rgb"] * gain).T),
-                             float(t["shadow_sat_mm"]), float(t["shadow_soft_mm"]))
+                             float(t["shadow_sat_mm"]), float(t["shadow_soft_mm"]), shadow_dn)
     # the depth and halo terms: their colours, stacked in coarse_grid's feature order
     halo = {k: t[k] for k in ("halo_sigma_mm", "halo_base_mm", "halo_gate_mm")} if "halo_rgb" in t else None
     mix = ([t["depth_rgb"]] if "depth_rgb" in t else []) + ([t["halo_rgb"]] if halo is not None else [])
@@ -413,7 +415,7 @@ class LutShader(Shader):
         return True
 
     def shade_shadows(self, d: np.ndarray) -> np.ndarray:
-        """The shadow terms alone: float32 ``(h, w, 3)`` DN (computed at half resolution)."""
+        """The shadow terms alone: float32 ``(h, w, 3)`` DN (computed on their grid, :meth:`ShadowSpec.grid_factor`)."""
         g = shadow_grid(d, self.shadow, self.profile.image.mm_per_px, 0.0)
         return np.zeros(d.shape + (3,), np.float32) if g is None else upsample(g[0], g[1], d.shape).copy()
 

@@ -23,8 +23,9 @@ Two ways in:
 Agreement with ``fast`` (stated tolerance, :data:`TOL_MEAN_DN` and :data:`TOL_MAX_DN`, tested in
 ``tests/gelsim/test_torch_backend.py``; each primitive's in ``tests/gelsim/test_optics_ops.py``): the
 noiseless float frames differ by operation order at float32 rounding, by OpenCV's fixed-point remap
-weights, and where the LED shadows are drawn, because the fast backend computes them on a
-half-resolution grid aligned with the imprint's box and this backend on one aligned with the frame.
+weights, and where the LED shadows are drawn, because the fast backend computes them on a grid of
+``f x f``-pixel blocks (:meth:`~gelsim.optics.ops.shadows.ShadowSpec.grid_factor`: 4 at 960x720) aligned with
+the imprint's box and this backend on one aligned with the frame (at most 0.23 DN on steep spheres at 960x720).
 
 Same bytes for any batch size, and on any device (see :mod:`gelsim.optics.ops`). Nothing here draws
 random numbers: the stages' draws (the noise's offsets) are drawn by the caller's numpy generator in

@@ -399,9 +399,9 @@ def test_background_image_replaces_parametric_field(tmp_path, small):
 def _reference_lut_frame(renderer, depth):
     """The calibrated shading computed the straightforward way, in float64: Sobel slopes, the unit
     normal, a bilinear lookup of the 9-channel table with the exact per-pixel [1, xn, yn] weights,
-    the camera blur; shadows on the half grid by a brute-force max over every step s = 1, 2, ...
-    along each LED's direction (bilinear samples, 0 outside), o / (o + sat), a Gaussian penumbra
-    (camera blur folded in), mixed to colour and interpolated back bilinearly. No tiles, bands,
+    the camera blur; shadows on their grid (f x f blocks, ShadowSpec.grid_factor) by a brute-force max
+    over every step s = 1, 2, ... along each LED's direction (bilinear samples, 0 outside), o / (o + sat), a
+    Gaussian penumbra (camera blur folded in), mixed to colour and interpolated back bilinearly. No tiles, bands,
     window doubling or fixed-point maps. Returns float32 (H, W, 3) DN without markers."""
     from scipy import ndimage
 
@@ -431,14 +431,15 @@ def _reference_lut_frame(renderer, depth):
     frame = renderer.background_float().astype(np.float64) + gaussian_blur(table.astype(np.float32),
                                                                             prof.camera.blur_sigma_px)
     s = sh.shadow
-    # half grid: 2 x 2 block means (zero-padded), grid pixel x' centred on full-resolution 2 x' + 1/2
-    hp = np.zeros((2 * -(-h // 2), 2 * -(-w // 2)))
+    # f x f block means (zero-padded), grid pixel x' centred on full-resolution f x' + (f - 1) / 2
+    g = s.grid_factor(mm)
+    hp = np.zeros((g * -(-h // g), g * -(-w // g)))
     hp[:h, :w] = d
-    hg = hp.reshape(hp.shape[0] // 2, 2, hp.shape[1] // 2, 2).mean(axis=(1, 3))
+    hg = hp.reshape(hp.shape[0] // g, g, hp.shape[1] // g, g).mean(axis=(1, 3))
     yy, xx = np.mgrid[0:hg.shape[0], 0:hg.shape[1]].astype(np.float64)
     cols = []
     for phi, tan_e in zip(s.dirs_deg, s.tan):
-        rise = float(tan_e) * mm * 2
+        rise = float(tan_e) * mm * g
         best = np.full(hg.shape, -np.inf)
         for step in range(1, int(np.ceil(hg.max() / rise)) + 2):
             sx = xx + step * math.cos(math.radians(float(phi)))
@@ -448,9 +449,9 @@ def _reference_lut_frame(renderer, depth):
         o = np.maximum(best - hg, 0.0)
         cols.append(o / (o + s.sat_mm))
     f = np.stack(cols, axis=-1) @ s.mix.T.astype(np.float64)
-    sigma = math.hypot(s.soft_mm / mm, prof.camera.blur_sigma_px) / 2
+    sigma = math.hypot(s.soft_mm / mm, prof.camera.blur_sigma_px) / g
     f = np.stack([ndimage.gaussian_filter(f[..., c], sigma, mode="constant", truncate=4.0) for c in range(3)], -1)
-    up = cv2.resize(f.astype(np.float32), (hg.shape[1] * 2, hg.shape[0] * 2), interpolation=cv2.INTER_LINEAR)
+    up = cv2.resize(f.astype(np.float32), (hg.shape[1] * g, hg.shape[0] * g), interpolation=cv2.INTER_LINEAR)
     return (frame + up[:h, :w] + _reference_coarse_terms(renderer, depth)).astype(np.float32)
 
 
@@ -533,6 +534,36 @@ def test_lut_path_matches_plain_reference(small, scene):
         # the steep scenes cast shadows (so the shadow path is compared too); the gentle weave casts none
         grid = shadow_grid(depth, r.shader.shadow, small.image.mm_per_px, small.camera.blur_sigma_px)
         assert (grid is not None) == (scene != "gentle weave")
+
+
+@pytest.mark.parametrize("width", [320, 640, 960])
+def test_shadow_grid_is_as_coarse_as_the_penumbra_allows(width, monkeypatch):
+    """The shadows' grid (ShadowSpec.grid_factor) on the steepest shadows, a 1 mm ball 0.6 mm deep and a
+    steep weave: on the chosen grid they are within SHADOW_GRID_TOL_DN of the full-resolution ones, on the
+    next coarser grid they are not (the rule is about as coarse as the tolerance allows, and no coarser)."""
+    from gelsim.optics.lut import table_model
+    from gelsim.optics.ops import shadows
+    from gelsim.optics.ops.resample import upsample
+    from gelsim.sensor import load_profile
+
+    prof = load_profile("vitac").with_resolution(width)
+    spec, mm = table_model(prof).shadows, prof.image.mm_per_px
+    f = spec.grid_factor(mm)
+    assert spec.soft_mm / mm / f >= shadows.SHADOW_GRID_MIN_SIGMA
+    assert (f == 1) == (width == 320) and (f >= 4) == (width == 960)   # finer frames, finer grids
+
+    def term(d, factor):
+        monkeypatch.setattr(shadows.ShadowSpec, "grid_factor", lambda self, mm_per_px: factor)
+        g = shadows.shadow_grid(d, spec, mm, prof.camera.blur_sigma_px)
+        return np.zeros(d.shape + (3,), np.float32) if g is None else upsample(g[0], g[1], d.shape)
+
+    chosen_err, coarser_err = 0.0, 0.0
+    for d in (sphere_dent(prof, 1.0, 0.6, center_mm=(1.3, -0.7)), _weave(prof, 0.12, 0.1)):
+        exact = term(d, 1)
+        assert np.abs(exact).max() > 1.5                                # both cast shadows
+        chosen_err = max(chosen_err, float(np.abs(term(d, f) - exact).max()))
+        coarser_err = max(coarser_err, float(np.abs(term(d, 2 * f) - exact).max()))
+    assert chosen_err <= shadows.SHADOW_GRID_TOL_DN < coarser_err, (chosen_err, coarser_err)
 
 
 def test_banded_pass_equals_one_pass_over_the_box(small, monkeypatch):

@@ -280,10 +280,11 @@ def test_occlusion(rng):
     assert seen >= 2                                                # most of these fields occlude
 
 
-@pytest.mark.parametrize("width", [96, 200])
+@pytest.mark.parametrize("width", [96, 200, 960])                  # grids of 1 x 1 and 4 x 4 pixels
 def test_shadow_grid(rng, width):
     prof, spec = _shadow_spec(width)
     mm = prof.image.mm_per_px
+    assert spec.grid_factor(mm) == (4 if width == 960 else 1)
     d = imprint(rng, prof.shape, mm)
     blur = float(rng.uniform(0.0, 1.5))
     ref = shadows.shadow_grid(d, spec, mm, blur)

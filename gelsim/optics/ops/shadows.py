@@ -3,8 +3,9 @@
 Seen from the camera a press is a bump of the membrane into the gel, lit through the gel at grazing
 angles, so each LED's shadow falls on the side away from it. Per LED direction ``k``: the *occlusion*
 ``o_k = max(0, max_{s>0}(h(p + s u_k) - h(p) - s tan(e_k)))`` (mm), its darkness ``o_k / (o_k + sat)``,
-mixed to colour by the table's ``shadow_rgb``, blurred by the penumbra (and the camera), all on a grid
-:data:`SHADOW_SCALE` times the resolution, then interpolated back bilinearly.
+mixed to colour by the table's ``shadow_rgb``, blurred by the penumbra (and the camera), all on a grid of
+``f x f``-pixel blocks, then interpolated back bilinearly: ``f`` the coarsest the penumbra allows
+(:meth:`ShadowSpec.grid_factor`).
 
 numpy kernels: one frame's box (OpenCV); torch kernels: ``(B, h, w)`` grids of whole frames.
 """
@@ -22,9 +23,21 @@ from .box import grow_extent
 from .filters import mix_channels, mix_channels_torch, smooth, smooth_torch
 from .resample import area_mean, area_mean_box, area_mean_torch, upsample, upsample_torch
 
-# Shadows vary over several pixels (the ball's rim is blurred by the gel), so they are
-# computed at half resolution: 4x fewer pixels, no visible change (checked in the tests).
-SHADOW_SCALE = 0.5
+# The renderer's shadow grid (ShadowSpec.grid_factor; docs/performance.md, "The shadow grid"). A shadow's
+# edge is a step of darkness blurred by the penumbra (Gaussian, sigma soft_mm), so the grid must resolve
+# that blur, not the image pixel; in grid pixels s = soft_mm / (mm_per_px f):
+# - s >= SHADOW_GRID_MIN_SIGMA: a Gaussian passes the grid's Nyquist frequency at exp(-pi^2 s^2 / 2),
+#   0.7% at s = 1, so sampling the blurred shadow on the grid aliases nothing visible;
+# - bilinear interpolation back errs by at most h^2 / 8 max|f''| = A phi(1) / (8 s^2) on a step of A DN
+#   (phi(1) = 0.242: the steepest curvature of a unit Gaussian edge). Measured against a full-resolution
+#   grid with the R1.5 table (vitac, 320x240 to 960x720): 1.3-1.9x that bound on a steep ball, 2.0-2.9x on
+#   a steep weave (the occlusion found on the block means of fine relief adds its own error), so
+#   SHADOW_GRID_MODEL_MARGIN times the bound must stay within SHADOW_GRID_TOL_DN.
+SHADOW_GRID_MIN_SIGMA = 1.0
+SHADOW_GRID_TOL_DN = 1.0        # one 8-bit step, about the cameras' read noise (0.92 DN, R1.5)
+SHADOW_GRID_MODEL_MARGIN = 3.0  # the measured error over the interpolation bound, rounded up (see above)
+# The calibration fits the shadows on a half-resolution grid (its design: gelsim.calibrate, shadow_factors).
+FIT_SCALE = 0.5
 # Below a third of a grid pixel a blur changes nothing visible: the penumbra is then skipped.
 MIN_BLUR_PX = 0.3
 
@@ -35,12 +48,33 @@ class ShadowSpec:
     float32 ``(K,)`` in-plane directions towards the LEDs (0 = +x, 90 = +y); ``tan`` ``(K,)`` the grazing
     rays' slopes; ``mix`` float32 ``(3, K)`` DN of full darkness per colour (the table's ``shadow_rgb``
     transposed, at the profile's gain); ``sat_mm``: the occlusion at half darkness; ``soft_mm``: the
-    penumbra's Gaussian sigma."""
+    penumbra's Gaussian sigma; ``step_dn``: the largest colour change of full darkness (DN, the table's
+    ``shadow_rgb`` as fitted, so that a unit's gains never change the grid)."""
     dirs_deg: np.ndarray
     tan: np.ndarray
     mix: np.ndarray
     sat_mm: float
     soft_mm: float
+    step_dn: float
+
+    def grid_factor(self, mm_per_px: float) -> int:
+        """Full-resolution pixels per grid pixel of the shadows at ``mm_per_px``: the coarsest power of two
+        keeping the penumbra at least :data:`SHADOW_GRID_MIN_SIGMA` grid pixels wide and its interpolation
+        error (:data:`SHADOW_GRID_MODEL_MARGIN` times ``step_dn phi(1) / (8 sigma^2)``) within
+        :data:`SHADOW_GRID_TOL_DN` (see there); 1 for hard-edged shadows. On the R1.5 table: 4 at 960x720
+        (sigma 1.27 grid px), 2 at 640x480, 1 at 320x240."""
+        curvature = math.exp(-0.5) / math.sqrt(2.0 * math.pi)          # phi(1)
+        sigma_px = self.soft_mm / mm_per_px
+
+        def fits(f: int) -> bool:
+            s = sigma_px / f
+            err = SHADOW_GRID_MODEL_MARGIN * self.step_dn * curvature / (8.0 * s * s) if s > 0 else math.inf
+            return s >= SHADOW_GRID_MIN_SIGMA and err <= SHADOW_GRID_TOL_DN
+
+        f = 1
+        while fits(2 * f):
+            f *= 2
+        return f
 
     def reach_px(self, depth_max_mm: float, mm_per_px: float, blur_px: float) -> int:
         """How far beyond an imprint ``depth_max_mm`` deep its shadows reach, px: ``depth / tan`` at the
@@ -49,7 +83,7 @@ class ShadowSpec:
         return int(math.ceil(depth_max_mm / max(float(np.min(self.tan)), 1e-3) / mm_per_px + 3.0 * soft_px))
 
 
-def grid_factor(scale: float) -> int:
+def scale_factor(scale: float) -> int:
     """Full-resolution pixels per grid pixel of a grid ``scale`` (1/n) times the resolution."""
     f = round(1.0 / scale)
     if f < 1 or abs(f * scale - 1.0) > 1e-6:
@@ -122,13 +156,13 @@ def grid_slopes(hg: np.ndarray) -> tuple[float, float]:
 
 
 def occlusion(depth: np.ndarray, mm_per_px: float, dir_deg: float, tan_e: float,
-              scale: float = SHADOW_SCALE) -> np.ndarray:
+              scale: float = FIT_SCALE) -> np.ndarray:
     """Height of the surface towards the light above the grazing ray, mm: float32 like ``depth``.
 
     ``o(p) = max(0, max_{s > 0} h(p + s u) - h(p) - s tan_e)`` with ``u`` the unit
     in-plane vector at ``dir_deg`` (0 = +x, 90 = +y). Computed on a grid ``scale`` times the
     resolution (:func:`occlusion_grid`) and interpolated back bilinearly."""
-    f = grid_factor(scale)
+    f = scale_factor(scale)
     occ = occlusion_grid(area_mean(depth, f), dir_deg, tan_e * mm_per_px * f)
     return upsample(occ, f, depth.shape)
 
@@ -158,7 +192,7 @@ def occlusion_factors(depth: np.ndarray, mm_per_px: float, dirs_deg, tans, sat_m
 
 
 def shadow_factors(depth: np.ndarray, mm_per_px: float, dirs_deg, tans, sat_mm: float,
-                   soft_mm: float = 0.0, scale: float = SHADOW_SCALE) -> tuple[np.ndarray, np.ndarray]:
+                   soft_mm: float = 0.0, scale: float = FIT_SCALE) -> tuple[np.ndarray, np.ndarray]:
     """Soft shadow darkness per light direction on a ``scale`` grid (the calibration's design).
 
     For each direction ``k`` the hard occlusion ``o_k`` (:func:`occlusion`) becomes
@@ -171,7 +205,7 @@ def shadow_factors(depth: np.ndarray, mm_per_px: float, dirs_deg, tans, sat_mm: 
     map from full-resolution pixels to that grid (for ``cv2.warpAffine(..., WARP_INVERSE_MAP)``).
     Pixel centres: full-resolution ``x`` is grid ``x' = scale (x + 1/2) - 1/2``.
     """
-    factor = grid_factor(scale)
+    factor = scale_factor(scale)
     f = occlusion_factors(depth, mm_per_px, dirs_deg, tans, sat_mm, factor)
     if f is None:
         h, w = depth.shape
@@ -187,9 +221,10 @@ def shadow_factors(depth: np.ndarray, mm_per_px: float, dirs_deg, tans, sat_mm: 
 def shadow_grid(d: np.ndarray, spec: ShadowSpec, mm_per_px: float, extra_blur_px: float, extent=None):
     """The shadows' colour change of imprint ``d`` (float32 mm; the box they fall in, 0 beyond it) on
     the grid, blurred by the penumbra and by ``extra_blur_px`` (sigma, full-resolution px):
-    ``(small, factor)`` with float32 ``(h', w', 3)`` DN to be upsampled by ``factor`` (:func:`upsample`);
-    None where no LED casts a shadow. ``extent``: as for :func:`occlusion_factors`."""
-    factor = grid_factor(SHADOW_SCALE)
+    ``(small, factor)`` with float32 ``(h', w', 3)`` DN to be upsampled by ``factor`` (:func:`upsample`;
+    :meth:`ShadowSpec.grid_factor`); None where no LED casts a shadow. ``extent``: as for
+    :func:`occlusion_factors`."""
+    factor = spec.grid_factor(mm_per_px)
     f = occlusion_factors(d, mm_per_px, spec.dirs_deg, spec.tan, spec.sat_mm, factor, extent)
     if f is None or not f.any():
         return None
@@ -242,10 +277,10 @@ def occlusion_torch(hg, dir_deg: float, rise: float, span_mm: float):
 
 def shadow_grid_torch(d, spec: ShadowSpec, mm_per_px: float, extra_blur_px: float):
     """:func:`shadow_grid` of whole frames ``(B, H, W)``: ``(B, 3, h', w')`` DN (zero where no shadow falls),
-    to be upsampled by ``grid_factor(SHADOW_SCALE)``. A direction casts per frame as the numpy kernel
+    to be upsampled by ``spec.grid_factor(mm_per_px)``. A direction casts per frame as the numpy kernel
     decides (the largest neighbour step along it at least the ray's rise)."""
     torch = torch_module()
-    factor = grid_factor(SHADOW_SCALE)
+    factor = spec.grid_factor(mm_per_px)
     hg = area_mean_torch(d, factor)                                   # (B, hs, ws)
     span = float(hg.amax()) - min(float(hg.amin()), 0.0)
     sx = (hg[:, :, 1:] - hg[:, :, :-1]).abs().amax(dim=(1, 2))        # per frame (grid_slopes)
@@ -272,7 +307,7 @@ class ShadowTerm:
     def __init__(self, spec: ShadowSpec, mm_per_px: float):
         self.spec = spec
         self.mm = float(mm_per_px)
-        self.factor = grid_factor(SHADOW_SCALE)
+        self.factor = spec.grid_factor(self.mm)
 
     def part(self, depth: np.ndarray, extent, margin_px: int, blur_sigma_px: float):
         """``(box, grid, factor)``: the box the shadows of imprint ``depth`` (float32 ``(H, W)`` mm) may fall in
