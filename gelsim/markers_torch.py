@@ -8,7 +8,7 @@ on one common grid, so every frame's convolution is the numpy path's, up to roun
 blur reads zeros past each frame's window, as OpenCV's constant border does.
 
 Stated agreement with the numpy path: marker centres and corners within :data:`TOL_PX` px (tested in
-``tests/gelsim/test_device_markers.py`` on the imprints of the agreement cases, :mod:`gelsim.gel.parity_cases`).
+``tests/gelsim/test_markers_torch.py`` on the imprints of the agreement cases, :mod:`gelsim.gel.parity_cases`).
 """
 from __future__ import annotations
 
