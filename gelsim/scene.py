@@ -444,19 +444,17 @@ def travel_patch(obj: TouchedObject, motion, profile, mm_per_px: float, *, seed:
     circle (so any twist and tilt stay covered). ``snap``: put the origin on the object's own grid
     of ``mm_per_px`` cells (the physics grid: a max-pool then sees the same cells wherever the
     sensor goes)."""
-    x0, y0, w, h = _travel_region(motion, profile, mm_per_px, snap, poses)
-    hf = obj.heights(x0, y0, w, h, mm_per_px, seed=seed, rotation_deg=motion.fabric_rotation_deg)
-    return HeightPatch(np.asarray(hf, dtype=np.float32), (x0, y0), mm_per_px)
+    return travel_patch_parts(obj, motion, profile, mm_per_px, seed=seed, snap=snap, poses=poses).finish()
 
 
-def travel_patch_parts(obj: TouchedObject, motion, profile, mm_per_px: float, *, seed: int,
+def travel_patch_parts(obj: TouchedObject, motion, profile, mm_per_px: float, *, seed: int, snap: bool = False,
                        poses: tuple[np.ndarray, np.ndarray] | None = None) -> PatchParts:
     """:func:`travel_patch`'s patch, a rotated fabric's left before its resampling (``obj.heights_parts``, where the
     object has one): what the host must make of it, the rest for a device (``--stages all``)."""
-    x0, y0, w, h = _travel_region(motion, profile, mm_per_px, False, poses)
+    x0, y0, w, h = _travel_region(motion, profile, mm_per_px, snap, poses)
     parts = getattr(obj, "heights_parts", obj.heights)
     hf = parts(x0, y0, w, h, mm_per_px, seed=seed, rotation_deg=motion.fabric_rotation_deg)
-    return PatchParts(np.asarray(hf, dtype=np.float32) if isinstance(hf, np.ndarray) else hf, (x0, y0), mm_per_px)
+    return PatchParts(hf if hasattr(hf, "finish") else np.asarray(hf, dtype=np.float32), (x0, y0), mm_per_px)
 
 
 def _travel_region(motion, profile, mm_per_px: float, snap: bool, poses) -> tuple[float, float, int, int]:
